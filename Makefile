@@ -1,0 +1,18 @@
+.PHONY: setup test lint quickstart bench
+
+setup:
+	bash scripts/setup.sh
+
+test:
+	bash scripts/test.sh
+
+lint:
+	ruff check src tests bench
+	mypy
+
+quickstart:
+	bash scripts/quickstart.sh
+
+bench:
+	python bench/throughput.py
+	python bench/learning.py

@@ -1,0 +1,66 @@
+"""What the trainer and the monitor need from an agent."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+
+from mira.replay import Batch
+
+
+@dataclass
+class AgentConfig:
+    """Hyperparameters shared by SAC and DDPG (Table 1 of the paper, then the usual defaults)."""
+
+    lr: float = 1e-4
+    """Learning rate of actor, critics (and SAC's temperature); Table 1."""
+    gamma: float = 0.99
+    """Discount factor; Table 1."""
+    hidden: tuple[int, ...] = (256, 256)
+    """Hidden widths of the actor and critic MLPs (ReLU); Table 1."""
+    batch_size: int = 256
+    """Minibatch size per gradient step."""
+    tau: float = 0.005
+    """Polyak factor of the target networks."""
+    init_alpha: float = 1.0
+    """SAC: initial entropy temperature."""
+    autotune_alpha: bool = True
+    """SAC: learn the temperature towards a target entropy of -|A|."""
+    exploration_noise: float = 0.1
+    """DDPG: std of the Gaussian action noise (actions in [-1, 1])."""
+    policy_delay: int = 1
+    """Actor (and target) update every this many critic updates."""
+
+
+@dataclass
+class PolicyStats:
+    """The policy's action distribution on a set of states, for the monitor.
+
+    SAC: mean and log-std of the pre-tanh Gaussian (``squashed=True``). DDPG: the deterministic action
+    and the log of the exploration noise std (its Gaussian surrogate, ``squashed=False``).
+    """
+
+    mean: np.ndarray
+    log_std: np.ndarray
+    squashed: bool
+
+
+class Agent(Protocol):
+    """An off-policy actor-critic agent driven by the trainer."""
+
+    algo: str
+
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray: ...
+
+    def update(self, batch: Batch, reward: torch.Tensor) -> dict[str, float]: ...
+
+    def policy_stats(self, obs: torch.Tensor) -> PolicyStats: ...
+
+    def value(self, obs: torch.Tensor) -> torch.Tensor: ...
+
+    def state_dict(self) -> dict[str, Any]: ...
+
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...

@@ -1,0 +1,201 @@
+"""The ``mira`` command line.
+
+Bad input (flags, task cards, program files, sweep files) is reported on one line with exit status 2
+and no traceback; a run that fails for lack of disk space stops with exit status 1 and a resumable
+state.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import platform
+import sys
+from collections.abc import Sequence
+from typing import Any, NoReturn
+
+import torch
+
+from mira import __version__
+from mira.agents import ALGOS
+from mira.config import TrainConfig, from_dict, to_dict
+from mira.errors import DiskFullError, MiraError, UsageError
+from mira.methods import METHODS, build_method
+from mira.tasks.card import builtin_task_names, card_to_dict, load_task
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports errors on one line (exit 2) instead of a usage dump."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+    return value
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative, got {value}")
+    return value
+
+
+def _hidden(text: str) -> tuple[int, ...]:
+    try:
+        widths = tuple(int(w) for w in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated widths like 256,256, got {text!r}") from None
+    if not widths or any(w <= 0 for w in widths):
+        raise argparse.ArgumentTypeError(f"widths must be positive, got {text!r}")
+    return widths
+
+
+def _add_llm_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--llm", default="offline", metavar="BACKEND",
+                   help="offline (rule-based engineer, default), script:FILE, or openai:MODEL")
+    p.add_argument("--base-url", default=None, help="OpenAI-compatible endpoint (default: $MIRA_BASE_URL)")
+    p.add_argument("--api-key-env", default="OPENAI_API_KEY", help="environment variable holding the API key")
+    p.add_argument("--llm-cache", default=None, metavar="DIR", help="response cache directory")
+    p.add_argument("--llm-offline-only", action="store_true", help="a cache miss is an error instead of a call")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="mira", description="LLM-written reward factors, revised while the agent learns.")
+    parser.add_argument("--version", action="version", version=f"mira {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    t = sub.add_parser("train", help="train one run (one task, method, algo, seed)")
+    t.add_argument("--task", default="halfcheetah",
+                   help=f"built-in task ({', '.join(builtin_task_names())}) or a .toml/.yaml task card")
+    t.add_argument("--method", default="dense", choices=sorted(METHODS))
+    t.add_argument("--algo", default="sac", choices=ALGOS)
+    t.add_argument("--steps", type=_positive_int, default=100_000)
+    t.add_argument("--seed", type=_nonneg_int, default=0)
+    t.add_argument("--out", default=None, help="run directory (required unless --resume)")
+    t.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR from its last checkpoint")
+    t.add_argument("--overwrite", action="store_true", help="replace an existing non-empty --out directory")
+    t.add_argument("--learning-starts", type=_nonneg_int, default=10_000)
+    t.add_argument("--buffer-size", type=_positive_int, default=1_000_000)
+    t.add_argument("--batch-size", type=_positive_int, default=256)
+    t.add_argument("--lr", type=float, default=1e-4)
+    t.add_argument("--hidden", type=_hidden, default=(256, 256), help="hidden widths, e.g. 256,256")
+    t.add_argument("--eval-every", type=_positive_int, default=5_000)
+    t.add_argument("--eval-episodes", type=_positive_int, default=10)
+    t.add_argument("--checkpoint-every", type=_positive_int, default=25_000)
+    t.add_argument("--log-every", type=_positive_int, default=1_000)
+    t.add_argument("--max-episode-steps", type=_positive_int, default=None)
+    t.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    t.add_argument("--threads", type=_positive_int, default=None, help="PyTorch intra-op threads")
+    t.add_argument("--program", default=None, help="start from this factor-program JSON (program methods)")
+    t.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
+    _add_llm_flags(t)
+    return parser
+
+
+def _config_from_args(args: argparse.Namespace) -> TrainConfig:
+    cfg = TrainConfig(
+        task=args.task, method=args.method, algo=args.algo, steps=args.steps, seed=args.seed,
+        learning_starts=args.learning_starts, buffer_size=args.buffer_size, eval_every=args.eval_every,
+        eval_episodes=args.eval_episodes, checkpoint_every=args.checkpoint_every, log_every=args.log_every,
+        max_episode_steps=args.max_episode_steps, device=args.device, threads=args.threads, program=args.program,
+    )
+    cfg.agent.batch_size, cfg.agent.lr, cfg.agent.hidden = args.batch_size, args.lr, args.hidden
+    cfg.llm.backend, cfg.llm.base_url, cfg.llm.api_key_env = args.llm, args.base_url, args.api_key_env
+    cfg.llm.cache_dir, cfg.llm.offline_only = args.llm_cache, args.llm_offline_only
+    return cfg
+
+
+def _environment_facts() -> dict[str, Any]:
+    import gymnasium
+    import mujoco
+    import numpy
+
+    return {"mira": __version__, "python": platform.python_version(), "torch": torch.__version__,
+            "numpy": numpy.__version__, "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
+            "platform": platform.platform(), "argv": sys.argv}
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from mira.loop.trainer import TrainSetup, Trainer, resolve_device
+    from mira.runio.rundir import RunDir, prepare_run_dir
+
+    if args.resume:
+        path = prepare_run_dir(args.resume, resume=True, overwrite=False)
+        try:
+            saved = json.loads((path / "config.json").read_text(encoding="utf-8"))
+            cfg: TrainConfig = from_dict(TrainConfig, saved["config"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise UsageError(f"--resume {path}: config.json is unusable ({exc})") from exc
+    else:
+        if args.out is None:
+            raise UsageError("train: --out DIR is required (or --resume DIR)")
+        cfg = _config_from_args(args)
+        if cfg.learning_starts >= cfg.steps and cfg.method != "sparse":
+            logging.getLogger(__name__).warning("learning_starts >= steps: the agent will never update")
+        path = prepare_run_dir(args.out, resume=False, overwrite=args.overwrite)
+    card = load_task(cfg.task)
+    run = RunDir(path)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    parts = build_method(cfg, card, path)
+    if not args.resume:
+        run.write_config({"config": to_dict(cfg), "task_card": card_to_dict(card), "method": parts.reward.describe(),
+                          "environment": _environment_facts()})
+    setup = TrainSetup(
+        card=card, algo=cfg.algo, steps=cfg.steps, seed=cfg.seed, learning_starts=cfg.learning_starts,
+        buffer_size=cfg.buffer_size, eval_every=cfg.eval_every, eval_episodes=cfg.eval_episodes,
+        checkpoint_every=cfg.checkpoint_every, log_every=cfg.log_every, max_episode_steps=cfg.max_episode_steps,
+        device=resolve_device(cfg.device), agent_config=cfg.agent, reward=parts.reward, hooks=parts.hooks,
+        quiet=args.quiet,
+    )
+    trainer = Trainer(setup, run)
+    try:
+        result = trainer.run()
+    except DiskFullError as exc:
+        print(f"mira: {exc}; the run stopped at its last checkpoint and can be resumed with --resume {path}",
+              file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        run.set_status("interrupted", trainer.step, "interrupted by the user; resume with --resume")
+        print(f"\nmira: interrupted; resume with: mira train --resume {path}", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        run.set_status("failed", trainer.step, f"{type(exc).__name__}: {exc}")
+        raise
+    final = "" if result.final_eval is None else f", final eval return {result.final_eval.mean:.2f}"
+    print(f"mira: finished {result.steps} steps in {result.wall_s:.1f} s{final}; run directory {path}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if getattr(args, "quiet", False) else logging.WARNING,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    handlers = {"train": cmd_train}
+    try:
+        return handlers[args.command](args)
+    except UsageError as exc:
+        print(f"mira {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except MiraError as exc:
+        print(f"mira {args.command}: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    sys.exit(main())

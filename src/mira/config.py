@@ -1,0 +1,113 @@
+"""Typed run configuration. ``config.json`` in a run directory is this dataclass as JSON, and
+``--resume`` rebuilds the run from it, so a run directory is enough to rerun a run."""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from typing import Any
+
+from mira.agents.base import AgentConfig
+
+
+@dataclass
+class LLMConfig:
+    """Which reward engineer writes and edits factor programs, and how calls are made."""
+
+    backend: str = "offline"
+    """``offline`` (rule-based engineer, no network), ``script:FILE`` or ``openai:MODEL``."""
+    base_url: str | None = None
+    """Endpoint of an OpenAI-compatible server (default: ``$MIRA_BASE_URL`` or the SDK's)."""
+    api_key_env: str = "OPENAI_API_KEY"
+    """Name of the environment variable holding the API key (the key itself is never saved)."""
+    cache_dir: str | None = None
+    """Response cache; default ``RUN_DIR/llm/cache``."""
+    offline_only: bool = False
+    """Turn a cache miss into an error instead of a call (exact offline replay)."""
+    timeout_s: float = 120.0
+    """Per-request timeout."""
+    max_retries: int = 4
+    """Retries on connection errors, timeouts, 429 and 5xx, with exponential backoff and jitter."""
+    max_calls: int | None = 200
+    """Per-run budget on LLM calls (None: unlimited)."""
+    max_tokens_total: int | None = 2_000_000
+    """Per-run budget on prompt + completion tokens (None: unlimited)."""
+
+
+@dataclass
+class TrainConfig:
+    """Everything that defines a training run."""
+
+    task: str = "halfcheetah"
+    """Built-in task name or path to a task card (.toml/.yaml)."""
+    method: str = "dense"
+    """Reward method (see ``mira train --help``)."""
+    algo: str = "sac"
+    """Off-policy optimiser: ``sac`` or ``ddpg``."""
+    steps: int = 100_000
+    """Environment steps to train for."""
+    seed: int = 0
+    """Seed of every random number generator of the run."""
+    learning_starts: int = 10_000
+    """Uniform-random steps before learning starts."""
+    buffer_size: int = 1_000_000
+    """Replay capacity (transitions)."""
+    eval_every: int = 5_000
+    """Evaluate every this many environment steps (and at the end)."""
+    eval_episodes: int = 10
+    """Deterministic evaluation episodes per evaluation, on a separate environment."""
+    checkpoint_every: int = 25_000
+    """Checkpoint at the first episode boundary after every this many steps (and at the end)."""
+    log_every: int = 1_000
+    """Write a ``train.csv`` row every this many steps."""
+    max_episode_steps: int | None = None
+    """Override the environment's time limit (None: the environment's own, e.g. 1000)."""
+    device: str = "auto"
+    """``auto`` (CUDA when present), ``cpu`` or ``cuda``."""
+    threads: int | None = None
+    """PyTorch intra-op threads (None: PyTorch's default)."""
+    agent: AgentConfig = field(default_factory=AgentConfig)
+    """Agent hyperparameters."""
+    llm: LLMConfig = field(default_factory=LLMConfig)
+    """LLM backend settings (methods that use factor programs)."""
+    program: str | None = None
+    """Start from this factor-program JSON instead of asking the LLM (methods that use programs)."""
+
+
+def to_dict(obj: Any) -> Any:
+    """A dataclass tree as plain JSON-ready data."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, tuple | list):
+        return [to_dict(x) for x in obj]
+    return obj
+
+
+def from_dict(cls: type[Any], data: dict[str, Any], where: str = "config") -> Any:
+    """Rebuild a dataclass tree; unknown keys are errors that name the key."""
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(data) - known
+    if unknown:
+        raise ValueError(f"{where}: unknown field(s) {', '.join(sorted(unknown))}")
+    kwargs: dict[str, Any] = {}
+    for name, value in data.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint) and isinstance(value, dict):
+            kwargs[name] = from_dict(typing.cast(type, hint), value, f"{where}.{name}")
+        elif _is_tuple_hint(hint) and isinstance(value, list):
+            kwargs[name] = tuple(value)
+        else:
+            kwargs[name] = value
+    return cls(**kwargs)
+
+
+def _is_tuple_hint(hint: Any) -> bool:
+    origin = typing.get_origin(hint)
+    if origin is tuple:
+        return True
+    if origin in (typing.Union, types.UnionType):
+        return any(_is_tuple_hint(a) for a in typing.get_args(hint))
+    return False

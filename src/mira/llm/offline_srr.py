@@ -1,0 +1,628 @@
+"""SRR for the offline engineer: the evidence-to-operator rules of section 4.4.2, applied by hand.
+
+Given the MCM evidence in ``request.context`` it proposes at most M one-edit candidates in the
+Appendix A JSON, ranked by how strongly the evidence supports each rule:
+
+* low/negative PVC (potential decoupled from extrinsic value) → Gate the dominant progress Φ-factor
+  on a state-only posture predicate (HalfCheetah: ``v_x · (1 − tanh(α θ²))``, section 5.3.1);
+  alternative: Refactor it to a heading-consistent form (``v_x cos θ``);
+* high RPE plateau with poor return → Add a bounded, state-only escape bonus localised at the
+  stagnation band (HumanoidStandup: ``σ(α (z − z_stag)) · tanh(β v_z)``, section 5.3.2);
+  back-off: Scale the largest-range factor down;
+* near-zero FAP (ossified attention) → Gate the dominant factor on a state predicate, or Prune it;
+* large TPD oscillation without gains → Sat (clip) the fastest-varying term.
+
+Without diagnostics (``guided`` false: the w/o-MCM ablation) it can only propose generic edits from
+the program itself (Sat or Scale of the largest-range factor). Each candidate's
+``updated_factors`` is the complete revised factor set. Code is written only with ``s.<feature>``,
+arithmetic and ``np.tanh/exp/clip/square/cos/ones_like``. Everything is deterministic.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from mira.llm.base import OFFLINE_ENGINEER_LABEL, LLMRequestRejectedError
+from mira.llm.factorcode import (
+    features_used,
+    first_return_expr,
+    format_range,
+    make_factor,
+    normalise_expr,
+    num,
+    parse_range,
+    rewrite_returns,
+    squared_features,
+)
+
+OPERATORS: tuple[str, ...] = ("Scale", "Sat", "Gate", "Refactor", "Add", "Prune")
+METRICS: tuple[str, ...] = ("PEG", "TPD", "PVC", "FAP", "RPE")
+
+# Rule thresholds: standardised values are robust z-scores (median/MAD), raw values as in 4.3.1.
+PVC_LOW_Z = -1.0
+PVC_LOW_RAW = 0.1
+RPE_HIGH_Z = 1.0
+RPE_HIGH_RAW = 0.5
+FAP_LOW_Z = -1.0
+FAP_LOW_RAW = 1e-3
+TPD_HIGH_Z = 1.5
+
+GATE_ALPHA_ANGLE = 2.0  # 1 - tanh(2 θ²): 0.54 at 0.5 rad (29°), 0.04 at 1 rad, ~0 when flipped
+GATE_ALPHA_UPRIGHT = 4.0  # 0.5 (1 + tanh(4 (u - 0.5))): 0.98 upright, 0.5 at 60° tilt, 0.02 lying
+EXPLORE_BETA = 2.0  # tanh(2 v_z): 0.76 when rising at 0.5 m/s
+EXPLORE_ALPHA_MAX = 100.0  # keeps exp() finite over any height range a body can span
+SCALE_BACKOFF = 0.5
+
+
+@dataclass
+class Candidate:
+    """One ranked, single-edit revision."""
+
+    edit: dict[str, Any]
+    factors: list[dict[str, Any]]
+    strength: float
+    order: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {"edits": [self.edit], "updated_factors": self.factors}
+
+
+@dataclass
+class Evidence:
+    """The SRR context, checked and normalised."""
+
+    factors: list[dict[str, Any]]
+    z: dict[str, float]
+    raw: dict[str, float]
+    grad: dict[str, float]
+    anomaly_score: float | None
+    recent_mean: float | None
+    baseline: float | None
+    band: dict[str, float | str] | None
+    posture: str | None
+    max_candidates: int
+    allowed: tuple[str, ...]
+    guided: bool
+    feature_names: list[str]
+    attention: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def poor_return(self) -> bool:
+        """Return is not improving on its baseline (unknown counts as poor: MCM fired anyway)."""
+        if self.recent_mean is None or self.baseline is None:
+            return True
+        return self.recent_mean <= self.baseline
+
+
+def _floats(raw: Any) -> dict[str, float]:
+    out: dict[str, float] = {}
+    if isinstance(raw, dict):
+        for key in METRICS:
+            value = raw.get(key)
+            if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+                out[key] = float(value)
+    return out
+
+
+def _opt_float(value: Any) -> float | None:
+    if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    return None
+
+
+def parse_evidence(context: dict[str, Any]) -> Evidence:
+    program = context.get("program")
+    if isinstance(program, str):
+        try:
+            program = json.loads(program)
+        except json.JSONDecodeError:
+            program = None
+    if not isinstance(program, dict) or not isinstance(program.get("factors"), list):
+        raise LLMRequestRejectedError("offline engineer: SRR needs context['program'] with a 'factors' list")
+    factors: list[dict[str, Any]] = []
+    for f in program["factors"]:
+        if not (
+            isinstance(f, dict)
+            and isinstance(f.get("name"), str)
+            and isinstance(f.get("code"), str)
+            and f.get("type") in ("PHI", "AUX")
+        ):
+            raise LLMRequestRejectedError(f"offline engineer: malformed factor in context['program']: {f!r}")
+        factors.append(copy.deepcopy(f))
+    trend_raw = context.get("return_trend")
+    trend: dict[str, Any] = trend_raw if isinstance(trend_raw, dict) else {}
+    band_raw = context.get("stagnation_band")
+    band: dict[str, float | str] | None = None
+    if isinstance(band_raw, dict):
+        center, half = _opt_float(band_raw.get("center")), _opt_float(band_raw.get("halfwidth"))
+        feat = band_raw.get("feature", "torso_height")
+        if center is not None and half is not None and isinstance(feat, str) and feat.isidentifier():
+            band = {"feature": feat, "center": center, "halfwidth": abs(half)}
+    allowed_raw = context.get("allowed_operators")
+    allowed = tuple(op for op in OPERATORS if allowed_raw is None or op in allowed_raw)
+    try:
+        max_candidates = int(context.get("max_candidates", 3))
+    except (TypeError, ValueError):
+        raise LLMRequestRejectedError(
+            "offline engineer: context['max_candidates'] must be an integer"
+        ) from None
+    names: list[str] = []
+    for item in context.get("features") or []:
+        name = item.get("name") if isinstance(item, dict) else item
+        if isinstance(name, str) and name not in names:
+            names.append(name)
+    for f in factors:
+        for name in features_used(f["code"]):
+            if name not in names and name != "obs":
+                names.append(name)
+    posture = context.get("posture_feature")
+    attention_raw = context.get("factor_attention")
+    attention = {
+        str(k): float(v)
+        for k, v in (attention_raw.items() if isinstance(attention_raw, dict) else [])
+        if isinstance(v, int | float) and math.isfinite(v)
+    }
+    guided = bool(context.get("guided", True))
+    return Evidence(
+        factors=factors,
+        z=_floats(context.get("diagnostics")) if guided else {},
+        raw=_floats(context.get("raw_diagnostics")) if guided else {},
+        grad=_floats(context.get("gradient")) if guided else {},
+        anomaly_score=_opt_float(context.get("anomaly_score")),
+        recent_mean=_opt_float(trend.get("recent_mean")),
+        baseline=_opt_float(trend.get("baseline")),
+        band=band if guided else None,
+        posture=posture if isinstance(posture, str) and posture.isidentifier() else None,
+        max_candidates=max(max_candidates, 0),
+        allowed=allowed,
+        guided=guided,
+        feature_names=names,
+        attention=attention,
+    )
+
+
+# --------------------------------------------------------------------------- factor selection
+
+
+def _phi(ev: Evidence) -> list[dict[str, Any]]:
+    return [f for f in ev.factors if f["type"] == "PHI"]
+
+
+def _width(f: dict[str, Any]) -> float:
+    rng = parse_range(f.get("range_hint"))
+    return -1.0 if rng is None else rng[1] - rng[0]
+
+
+def _magnitude(f: dict[str, Any]) -> float | None:
+    rng = parse_range(f.get("range_hint"))
+    return None if rng is None else max(abs(rng[0]), abs(rng[1]))
+
+
+def _is_rate(name: str) -> bool:
+    return name.endswith(("_rate", "_dot")) or "vel" in name or "omega" in name
+
+
+def progress_factor(ev: Evidence) -> dict[str, Any] | None:
+    """The Φ-factor that pays for progress: by name, else by reading a velocity linearly."""
+    best: tuple[float, int, dict[str, Any]] | None = None
+    for i, f in enumerate(_phi(ev)):
+        name = f["name"].lower()
+        score = 0.0
+        if any(k in name for k in ("vel", "progress", "forward", "speed", "run")):
+            score += 2.0
+        used = features_used(f["code"])
+        squared = set(squared_features(f["code"]))
+        if any(_is_rate(u) and u not in squared for u in used):
+            score += 1.0
+        if any(k in name for k in ("stab", "ctrl", "upright", "explore")):
+            score -= 3.0
+        if score <= 0:
+            continue
+        score += ev.attention.get(f["name"], 0.0)
+        if best is None or score > best[0]:
+            best = (score, i, f)
+    return None if best is None else best[2]
+
+
+def dominant_factor(ev: Evidence) -> dict[str, Any] | None:
+    """The Φ-factor the potential leans on: most attention, else progress, else widest range."""
+    phi = _phi(ev)
+    if not phi:
+        return None
+    if ev.attention:
+        return max(phi, key=lambda f: ev.attention.get(f["name"], -math.inf))
+    return progress_factor(ev) or max(phi, key=_width)
+
+
+def fastest_factor(ev: Evidence) -> dict[str, Any] | None:
+    """The Φ-factor that varies fastest: most (squared) rates read, ties to the widest range."""
+    phi = _phi(ev)
+    if not phi:
+        return None
+
+    def key(f: dict[str, Any]) -> tuple[float, float]:
+        squared = set(squared_features(f["code"]))
+        score = sum((2.0 if u in squared else 1.0) for u in features_used(f["code"]) if _is_rate(u))
+        return score, _width(f)
+
+    return max(phi, key=key)
+
+
+def widest_factors(ev: Evidence) -> list[dict[str, Any]]:
+    """Φ-factors by decreasing range-hint width (stable for ties)."""
+    return sorted(_phi(ev), key=lambda f: -_width(f))
+
+
+def posture_feature(ev: Evidence) -> str | None:
+    if ev.posture is not None:
+        return ev.posture
+    for name in ("pitch", "uprightness"):
+        if name in ev.feature_names:
+            return name
+    return None
+
+
+def _posture_gate(feature: str) -> tuple[str, float]:
+    """A state predicate g(s) in (0, 1] that is ~1 in a healthy posture."""
+    if "upright" in feature:
+        return f"0.5 * (1.0 + np.tanh({num(GATE_ALPHA_UPRIGHT)} * (s.{feature} - 0.5)))", GATE_ALPHA_UPRIGHT
+    return f"1.0 - np.tanh({num(GATE_ALPHA_ANGLE)} * np.square(s.{feature}))", GATE_ALPHA_ANGLE
+
+
+def _with(ev: Evidence, name: str, change: Callable[[dict[str, Any]], dict[str, Any] | None]) -> list[dict]:
+    """The factor set with ``name`` replaced by ``change(factor)`` (dropped when it returns None)."""
+    out: list[dict[str, Any]] = []
+    for f in ev.factors:
+        if f["name"] == name:
+            new = change(copy.deepcopy(f))
+            if new is not None:
+                out.append(new)
+        else:
+            out.append(copy.deepcopy(f))
+    return out
+
+
+def _fresh_name(ev: Evidence, base: str) -> str:
+    taken = {f["name"] for f in ev.factors}
+    if base not in taken:
+        return base
+    i = 1
+    while f"{base}_{i}" in taken:
+        i += 1
+    return f"{base}_{i}"
+
+
+def _edit(op: str, targets: list[str], params: dict[str, Any], why: str) -> dict[str, Any]:
+    return {"operator": op, "targets": targets, "params": params, "justification": why}
+
+
+# --------------------------------------------------------------------------- operators
+
+
+def gate_on_posture(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dict, list[dict]] | None:
+    feature = posture_feature(ev)
+    if feature is None or feature in features_used(target["code"]):
+        return None
+    gate, alpha = _posture_gate(feature)
+
+    def change(f: dict[str, Any]) -> dict[str, Any]:
+        f["code"] = rewrite_returns(f["code"], lambda x: f"({x}) * ({gate})")
+        f["doc"] = f"{f.get('doc', '')} (gated on posture: pays only while {feature} is healthy)".strip()
+        return f
+
+    params = {"gate_code": normalise_expr(gate), "alpha": alpha, "posture_feature": feature}
+    return _edit("Gate", [target["name"]], params, why), _with(ev, target["name"], change)
+
+
+def refactor_heading(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dict, list[dict]] | None:
+    feature = posture_feature(ev)
+    if feature is None or feature in features_used(target["code"]):
+        return None
+    factor = f"s.{feature}" if "upright" in feature else f"np.cos(s.{feature})"
+
+    def change(f: dict[str, Any]) -> dict[str, Any]:
+        f["code"] = rewrite_returns(f["code"], lambda x: f"({x}) * {factor}")
+        f["doc"] = f"{f.get('doc', '')} (projected on the torso heading via {feature})".strip()
+        return f
+
+    factors = _with(ev, target["name"], change)
+    new = next(f for f in factors if f["name"] == target["name"])
+    params = {"expression": first_return_expr(new["code"]), "posture_feature": feature}
+    return _edit("Refactor", [target["name"]], params, why), factors
+
+
+def saturate(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dict, list[dict]]:
+    rng = parse_range(target.get("range_hint"))
+    if rng is None:
+        lo, hi = -5.0, 5.0
+    else:
+        bound = max(abs(rng[0]), abs(rng[1])) / 2.0
+        lo, hi = max(rng[0], -bound), min(rng[1], bound)
+        if hi <= lo:
+            lo, hi = rng
+    lo_s, hi_s = num(lo), num(hi)
+
+    def change(f: dict[str, Any]) -> dict[str, Any]:
+        f["code"] = rewrite_returns(f["code"], lambda x: f"np.clip({x}, {lo_s}, {hi_s})")
+        f["range_hint"] = format_range(lo, hi)
+        return f
+
+    params = {"lower": float(lo_s), "upper": float(hi_s)}
+    return _edit("Sat", [target["name"]], params, why), _with(ev, target["name"], change)
+
+
+def scale(ev: Evidence, target: dict[str, Any], alpha: float, why: str) -> tuple[dict, list[dict]]:
+    def change(f: dict[str, Any]) -> dict[str, Any]:
+        f["code"] = rewrite_returns(f["code"], lambda x: f"{num(alpha)} * ({x})")
+        rng = parse_range(f.get("range_hint"))
+        if rng is not None:
+            f["range_hint"] = format_range(*sorted((alpha * rng[0], alpha * rng[1])))
+        return f
+
+    return _edit("Scale", [target["name"]], {"alpha": alpha}, why), _with(ev, target["name"], change)
+
+
+def prune(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dict, list[dict]] | None:
+    if target["type"] == "PHI" and len(_phi(ev)) < 2:
+        return None
+    return _edit("Prune", [target["name"]], {}, why), _with(ev, target["name"], lambda f: None)
+
+
+def _phi_scale(ev: Evidence) -> float:
+    """Typical magnitude of the Φ-factors (median of range-hint bounds), for commensurate additions."""
+    mags = sorted(m for m in (_magnitude(f) for f in _phi(ev)) if m is not None and m > 0)
+    if not mags:
+        return 1.0
+    mid = mags[len(mags) // 2] if len(mags) % 2 else 0.5 * (mags[len(mags) // 2 - 1] + mags[len(mags) // 2])
+    return float(f"{min(max(mid, 0.1), 10.0):.2g}")
+
+
+def _vertical_velocity(ev: Evidence) -> str | None:
+    for name in ("z_velocity", "vz", "v_z", "z_vel", "vertical_velocity"):
+        if name in ev.feature_names:
+            return name
+    return None
+
+
+def add_escape_bonus(ev: Evidence, why: str) -> tuple[dict, list[dict]] | None:
+    """Section 5.3.2: σ(α (z − z_stag)) · tanh(β v_z), localised at the stagnation band."""
+    if ev.band is None:
+        return add_bridge(ev, why)
+    feature = str(ev.band["feature"])
+    center, half = float(ev.band["center"]), max(float(ev.band["halfwidth"]), 0.02)
+    alpha = float(num(min(2.0 / half, EXPLORE_ALPHA_MAX)))
+    vz = _vertical_velocity(ev)
+    size = _phi_scale(ev)
+    sigmoid = f"1.0 / (1.0 + np.exp(-{num(alpha)} * (s.{feature} - {num(center)})))"
+    drive = f"np.tanh({num(EXPLORE_BETA)} * s.{vz})" if vz is not None else "1.0"
+    expr = f"({sigmoid}) * {drive}"
+    if size != 1.0:
+        expr = f"{num(size)} * ({expr})"
+    name = _fresh_name(ev, "r_explore")
+    new = make_factor(
+        name,
+        "PHI",
+        expr,
+        doc=(
+            f"escape bonus localised at the stagnation band {feature} = {num(center)} ± {num(half)}: "
+            + (
+                "rewards rising (vertical velocity) once at or above the band"
+                if vz is not None
+                else "rewards being at or above the band"
+            )
+        ),
+        units="1",
+        range_hint=format_range(-size if vz is not None else 0.0, size),
+    )
+    params = {
+        "new_factor": name,
+        "type": "PHI",
+        "feature": feature,
+        "z_stag": center,
+        "halfwidth": half,
+        "alpha": alpha,
+        "beta": EXPLORE_BETA if vz is not None else None,
+        "velocity_feature": vz,
+        "scale": size,
+        "code": new["code"],
+    }
+    return _edit("Add", [name], params, why), [*copy.deepcopy(ev.factors), new]
+
+
+def add_bridge(ev: Evidence, why: str) -> tuple[dict, list[dict]] | None:
+    """Without a localised band: a bounded, state-only bridge on rising (or forward) motion."""
+    size = _phi_scale(ev)
+    vz = _vertical_velocity(ev)
+    if vz is not None and any("height" in n for n in ev.feature_names):
+        feat, doc = vz, "bounded bonus for rising (vertical velocity): a sparse-to-dense bridge"
+    elif "x_velocity" in ev.feature_names:
+        feat, doc = "x_velocity", "bounded bonus for forward motion: a sparse-to-dense bridge"
+    else:
+        return None
+    name = _fresh_name(ev, "r_bridge")
+    expr = f"np.tanh({num(EXPLORE_BETA)} * s.{feat})"
+    if size != 1.0:
+        expr = f"{num(size)} * {expr}"
+    new = make_factor(name, "PHI", expr, doc=doc, units="1", range_hint=format_range(-size, size))
+    params = {
+        "new_factor": name,
+        "type": "PHI",
+        "feature": feat,
+        "beta": EXPLORE_BETA,
+        "scale": size,
+        "code": new["code"],
+    }
+    return _edit("Add", [name], params, why), [*copy.deepcopy(ev.factors), new]
+
+
+# --------------------------------------------------------------------------- rules
+
+
+def _fmt(ev: Evidence, metric: str) -> str:
+    parts = []
+    if metric in ev.z:
+        parts.append(f"standardised {ev.z[metric]:+.2f}")
+    if metric in ev.raw:
+        parts.append(f"raw {ev.raw[metric]:+.3g}")
+    if metric in ev.grad:
+        parts.append(f"KDE gradient {ev.grad[metric]:+.2f}")
+    return f"d_{metric} " + (", ".join(parts) if parts else "(no value given)")
+
+
+def _strengths(ev: Evidence) -> dict[str, float]:
+    """How strongly each rule's trigger holds (0 = not at all)."""
+    z, raw, g = ev.z, ev.raw, ev.grad
+    out: dict[str, float] = {}
+    pvc_low = z.get("PVC", 0.0) <= PVC_LOW_Z or raw.get("PVC", 1.0) <= PVC_LOW_RAW
+    if pvc_low:
+        out["PVC"] = 1.0 + max(-z.get("PVC", 0.0), 0.0) + max(g.get("PVC", 0.0), 0.0)
+    rpe_high = z.get("RPE", 0.0) >= RPE_HIGH_Z or raw.get("RPE", 0.0) >= RPE_HIGH_RAW
+    if rpe_high and ev.poor_return:
+        out["RPE"] = (
+            1.0
+            + max(z.get("RPE", 0.0), 0.0)
+            + max(-g.get("RPE", 0.0), 0.0)
+            + 0.5 * max(-z.get("PEG", 0.0), 0.0)
+            + (1.0 if ev.band is not None else 0.0)
+        )
+    fap_low = z.get("FAP", 0.0) <= FAP_LOW_Z or raw.get("FAP", 1.0) <= FAP_LOW_RAW
+    if fap_low:
+        out["FAP"] = 1.0 + max(-z.get("FAP", 0.0), 0.0) + max(g.get("FAP", 0.0), 0.0)
+    if z.get("TPD", 0.0) >= TPD_HIGH_Z and ev.poor_return:
+        out["TPD"] = 1.0 + max(z.get("TPD", 0.0), 0.0) + max(-g.get("TPD", 0.0), 0.0)
+    if not out:
+        # MCM fired but no single rule's threshold is met: follow the largest pull of the gradient.
+        pulls = {m: abs(ev.grad.get(m, 0.0)) + abs(ev.z.get(m, 0.0)) for m in METRICS}
+        top = max(METRICS, key=lambda m: pulls[m])
+        if pulls[top] > 0:
+            out["RPE" if top == "PEG" else top] = 0.5
+    return out
+
+
+def _rule_candidates(ev: Evidence, metric: str) -> list[tuple[dict, list[dict]] | None]:
+    """Primary then alternative proposals for one rule."""
+    if metric == "PVC":
+        target = progress_factor(ev) or dominant_factor(ev)
+        if target is None:
+            return []
+        why = (
+            f"{_fmt(ev, 'PVC')}: potential decoupled from extrinsic value (reward hacking); "
+            f"make {target['name']} conditional on a state-only posture predicate (4.4.2: low PVC -> Gate)"
+        )
+        alt = (
+            f"{_fmt(ev, 'PVC')}: embed physical consistency in {target['name']} by aligning it "
+            "with the torso heading (4.4.2: low PVC -> Refactor)"
+        )
+        return [gate_on_posture(ev, target, why), refactor_heading(ev, target, alt)]
+    if metric == "RPE":
+        trend = (
+            ""
+            if ev.recent_mean is None or ev.baseline is None
+            else f", return {ev.recent_mean:.6g} <= baseline {ev.baseline:.6g}"
+        )
+        band = (
+            ""
+            if ev.band is None
+            else f"; stagnation localised at {ev.band['feature']} = {float(ev.band['center']):.3g} "
+            f"± {float(ev.band['halfwidth']):.3g}"
+        )
+        why = (
+            f"{_fmt(ev, 'RPE')}{trend}, {_fmt(ev, 'PEG')}: high residual plateau with poor return, the "
+            f"factor set lacks an escape incentive{band} (4.4.2: high RPE -> Add)"
+        )
+        out: list[tuple[dict, list[dict]] | None] = [add_escape_bonus(ev, why)]
+        widest = widest_factors(ev)
+        if widest:
+            out.append(
+                scale(
+                    ev,
+                    widest[0],
+                    SCALE_BACKOFF,
+                    f"{_fmt(ev, 'RPE')}: back-off if variance explodes: scale down the widest-range "
+                    f"factor {widest[0]['name']} (4.4.2: Scale)",
+                )
+            )
+        return out
+    if metric == "FAP":
+        target = dominant_factor(ev)
+        if target is None:
+            return []
+        why = (
+            f"{_fmt(ev, 'FAP')}: attention over factors has ossified; make {target['name']} state-dependent "
+            "through a posture predicate (4.4.2: near-zero FAP -> Gate)"
+        )
+        alt = (
+            f"{_fmt(ev, 'FAP')}: {target['name']} dominates the potential's attention; remove it "
+            "(4.4.2: near-zero FAP -> Prune)"
+        )
+        return [gate_on_posture(ev, target, why), prune(ev, target, alt)]
+    if metric == "TPD":
+        target = fastest_factor(ev)
+        if target is None:
+            return []
+        why = (
+            f"{_fmt(ev, 'TPD')}: the policy oscillates without gains; saturate the fastest-varying "
+            f"term {target['name']} (4.4.2: large TPD -> Sat)"
+        )
+        return [saturate(ev, target, why)]
+    return []
+
+
+def _generic(ev: Evidence) -> list[tuple[dict, list[dict]] | None]:
+    """Unguided edits (no diagnostics): tame the largest-range Φ-factors."""
+    widest = widest_factors(ev)
+    out: list[tuple[dict, list[dict]] | None] = []
+    note = "no diagnostic evidence (unguided SRR)"
+    if widest:
+        out.append(saturate(ev, widest[0], f"{note}: clip the largest-range factor {widest[0]['name']}"))
+        out.append(
+            scale(
+                ev,
+                widest[0],
+                SCALE_BACKOFF,
+                f"{note}: scale down the largest-range factor {widest[0]['name']}",
+            )
+        )
+    fastest = fastest_factor(ev)
+    if fastest is not None and widest and fastest["name"] != widest[0]["name"]:
+        out.append(saturate(ev, fastest, f"{note}: clip the fastest-varying factor {fastest['name']}"))
+    return out
+
+
+def propose(context: dict[str, Any]) -> dict[str, Any]:
+    """The Appendix A reply: ranked candidates, each one edit plus the complete revised factor set."""
+    ev = parse_evidence(context)
+    ranked: list[Candidate] = []
+    order = 0
+    if ev.guided:
+        strengths = _strengths(ev)
+        for metric in sorted(strengths, key=lambda m: (-strengths[m], METRICS.index(m))):
+            for rank, proposal in enumerate(_rule_candidates(ev, metric)):
+                if proposal is not None and proposal[0]["operator"] in ev.allowed:
+                    # Primaries of every fired rule come before any rule's alternative.
+                    ranked.append(
+                        Candidate(proposal[0], proposal[1], strengths[metric] - 100.0 * rank, order)
+                    )
+                    order += 1
+    if not ranked:
+        for proposal in _generic(ev):
+            if proposal is not None and proposal[0]["operator"] in ev.allowed:
+                ranked.append(Candidate(proposal[0], proposal[1], -float(order), order))
+                order += 1
+    ranked.sort(key=lambda c: (-c.strength, c.order))
+    chosen: list[Candidate] = []
+    seen: set[str] = set()
+    for cand in ranked:
+        signature = json.dumps(cand.factors, sort_keys=True)
+        if signature in seen:
+            continue
+        seen.add(signature)
+        chosen.append(cand)
+        if len(chosen) >= ev.max_candidates:
+            break
+    return {"candidates": [c.to_json() for c in chosen], "engineer": OFFLINE_ENGINEER_LABEL}

@@ -1,0 +1,85 @@
+"""Evaluation: the extrinsic episodic return of the deterministic policy on a separate environment.
+
+Each evaluation uses the same episode seeds (``seed_base + k``), so evaluations are comparable across
+steps and need no environment state in a checkpoint. Shaping never enters the figure: it is the sum
+of the environment's own dense reward.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mira.agents.base import Agent
+from mira.loop.rollout import Rollout
+from mira.tasks.envs import EpisodicRewardWrapper
+
+
+@dataclass
+class EvalResult:
+    returns: np.ndarray
+    lengths: np.ndarray
+    final_obs: list[np.ndarray]
+
+    @property
+    def mean(self) -> float:
+        return float(self.returns.mean())
+
+    @property
+    def std(self) -> float:
+        return float(self.returns.std())
+
+
+def evaluate(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base: int) -> EvalResult:
+    returns, lengths, finals = [], [], []
+    for k in range(episodes):
+        obs, _ = env.reset(seed=seed_base + k)
+        total, length, done = 0.0, 0, False
+        while not done:
+            obs, _, terminated, truncated, info = env.step(agent.act(obs, deterministic=True))
+            total += info["dense_reward"]
+            length += 1
+            done = terminated or truncated
+        returns.append(total)
+        lengths.append(length)
+        finals.append(obs)
+    return EvalResult(np.asarray(returns), np.asarray(lengths), finals)
+
+
+def collect_rollout(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base: int, gamma: float) -> Rollout:
+    """Held-out episodes of the deterministic policy, with Monte-Carlo discounted returns-to-go."""
+    obs_l, next_l, act_l, rew_l, term_l, ep_l, mc_l, returns = [], [], [], [], [], [], [], []
+    for k in range(episodes):
+        obs, _ = env.reset(seed=seed_base + k)
+        done = False
+        rewards: list[float] = []
+        while not done:
+            action = agent.act(obs, deterministic=True)
+            next_obs, _, terminated, truncated, info = env.step(action)
+            obs_l.append(obs)
+            next_l.append(next_obs)
+            act_l.append(action)
+            rewards.append(info["dense_reward"])
+            term_l.append(terminated)
+            ep_l.append(k)
+            obs = next_obs
+            done = terminated or truncated
+        togo = np.zeros(len(rewards))
+        acc = 0.0
+        for t in range(len(rewards) - 1, -1, -1):
+            acc = rewards[t] + gamma * acc
+            togo[t] = acc
+        mc_l.append(togo)
+        rew_l.extend(rewards)
+        returns.append(sum(rewards))
+    return Rollout(
+        obs=np.asarray(obs_l, dtype=np.float32),
+        next_obs=np.asarray(next_l, dtype=np.float32),
+        actions=np.asarray(act_l, dtype=np.float32),
+        dense_rewards=np.asarray(rew_l),
+        terminated=np.asarray(term_l, dtype=bool),
+        episode_index=np.asarray(ep_l),
+        returns=np.asarray(returns),
+        mc_values=np.concatenate(mc_l),
+    )

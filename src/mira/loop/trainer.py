@@ -1,0 +1,290 @@
+"""The one training loop, shared by every method.
+
+collect -> store -> sample -> relabel (the method's reward source) -> update agent -> update source
+-> evaluate / log / run outer-loop hooks / checkpoint. Methods differ only in the reward source and
+the hooks they bring; nothing in this loop knows which method runs.
+
+Checkpoints are taken at episode boundaries (the first one after every ``checkpoint_every`` steps),
+so the environment's state is just its random generator: a resumed run continues bit-for-bit on CPU.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from mira.agents import Agent, make_agent
+from mira.errors import CheckpointError
+from mira.loop.evaluation import EvalResult, collect_rollout, evaluate
+from mira.loop.hooks import CycleContext, CycleHook
+from mira.loop.rollout import Rollout
+from mira.replay import ReplayBuffer
+from mira.rewards.base import RewardContext, RewardSource
+from mira.runio.checkpoint import load_latest, save_checkpoint
+from mira.runio.rundir import RunDir
+from mira.tasks.card import TaskCard
+from mira.tasks.envs import EpisodicRewardWrapper, make_env
+
+log = logging.getLogger(__name__)
+
+EVAL_SEED_OFFSET = 1_000_003
+HOLDOUT_SEED_OFFSET = 2_000_003
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+@dataclass
+class TrainSetup:
+    """The parts of one run, built by :func:`mira.methods.build_run` from a config."""
+
+    card: TaskCard
+    algo: str
+    steps: int
+    seed: int
+    learning_starts: int
+    buffer_size: int
+    eval_every: int
+    eval_episodes: int
+    checkpoint_every: int
+    log_every: int
+    max_episode_steps: int | None
+    device: torch.device
+    agent_config: Any
+    reward: RewardSource
+    hooks: list[CycleHook] = field(default_factory=list)
+    quiet: bool = False
+
+
+@dataclass
+class TrainResult:
+    final_eval: EvalResult | None
+    steps: int
+    wall_s: float
+
+
+class Trainer:
+    def __init__(self, setup: TrainSetup, run: RunDir) -> None:
+        self.setup = setup
+        self.run_dir = run
+        card = setup.card
+        self.env: EpisodicRewardWrapper = make_env(card, seed=setup.seed, max_episode_steps=setup.max_episode_steps)
+        self.eval_env = make_env(card, seed=setup.seed + EVAL_SEED_OFFSET, max_episode_steps=setup.max_episode_steps)
+        obs_dim = int(self.env.observation_space.shape[0])  # type: ignore[index]
+        act_dim = int(self.env.action_space.shape[0])  # type: ignore[index]
+        self.obs_dim, self.act_dim = obs_dim, act_dim
+        _seed_everything(setup.seed)
+        self.rng = np.random.default_rng(setup.seed)
+        self.buffer = ReplayBuffer(min(setup.buffer_size, max(setup.steps, 1)), obs_dim, act_dim)
+        self.agent: Agent = make_agent(setup.algo, obs_dim, act_dim, setup.agent_config, setup.device)
+        self.reward = setup.reward
+        self.reward.bind(
+            RewardContext(card, obs_dim, act_dim, setup.agent_config.gamma, setup.device, self.buffer,
+                          setup.seed, run.path)
+        )
+        self.step = 0
+        self.episode = 0
+        self.episode_len = 0
+        self.last_eval: EvalResult | None = None
+        self.recent_returns: list[float] = []
+        self._next_ckpt = setup.checkpoint_every
+        self._obs: np.ndarray | None = None
+
+    # ----------------------------------------------------------------------------------------- run
+    def run(self) -> TrainResult:
+        s = self.setup
+        resumed = self._restore()
+        evals = self.run_dir.eval_log()
+        train_log = self.run_dir.csv_log("train.csv", self._train_fields())
+        if resumed:
+            evals.rewind(self.step)
+            train_log.rewind(self.step)
+        tb = self.run_dir.tensorboard(purge_step=self.step if resumed else None)
+        self.run_dir.set_status("running", self.step)
+        if self._obs is None:
+            self._obs, _ = self.env.reset(seed=s.seed)
+        obs = self._obs
+        device = s.device
+        sums: dict[str, torch.Tensor] = {}
+        n_updates = 0
+        t_start = time.perf_counter()
+        t_window, step_window = t_start, self.step
+        bar = tqdm(total=s.steps, initial=self.step, disable=s.quiet, unit="step", dynamic_ncols=True, smoothing=0.05)
+        postfix: dict[str, Any] = {}
+
+        while self.step < s.steps:
+            # -- collect and store
+            if self.step < s.learning_starts:
+                action = self.rng.uniform(-1.0, 1.0, self.act_dim).astype(np.float32)
+            else:
+                action = self.agent.act(obs)
+            next_obs, reward, terminated, truncated, info = self.env.step(action)
+            row = self.buffer.add(obs, action, float(reward), info["dense_reward"], next_obs, terminated, truncated,
+                                  self.episode)
+            self.reward.on_transition(row)
+            self.step += 1
+            self.episode_len += 1
+            obs = next_obs
+
+            # -- sample, relabel, update
+            if self.step > s.learning_starts and self._can_sample():
+                batch = self.buffer.sample(
+                    s.agent_config.batch_size, self.rng, self.reward.needs_complete_episodes
+                ).to(device)
+                metrics = self.agent.update(batch, self.reward.relabel(batch))
+                metrics.update(self.reward.update(batch, self.step))
+                for k, v in metrics.items():
+                    sums[k] = sums[k] + v if k in sums else v.clone()
+                n_updates += 1
+
+            if self.step % s.eval_every == 0 or self.step == s.steps:
+                self.last_eval = evaluate(self.agent, self.eval_env, s.eval_episodes, s.seed + EVAL_SEED_OFFSET)
+                evals.append({"step": self.step, "return_mean": self.last_eval.mean,
+                              "return_std": self.last_eval.std,
+                              "length_mean": float(self.last_eval.lengths.mean()),
+                              "episodes": s.eval_episodes, "wall_s": round(time.perf_counter() - t_start, 3)})
+                tb.add_scalar("eval/return_mean", self.last_eval.mean, self.step)
+                postfix["eval"] = f"{self.last_eval.mean:.1f}"
+                if s.quiet:
+                    log.info("step %d: eval return %.2f ± %.2f", self.step, self.last_eval.mean, self.last_eval.std)
+
+            for hook in s.hooks:
+                if self.step % hook.interval == 0:
+                    scalars = hook.on_cycle(self._cycle_context())
+                    for k, v in scalars.items():
+                        tb.add_scalar(f"outer/{k}", v, self.step)
+                    postfix.update({k: f"{v:.3g}" for k, v in scalars.items() if k in ("S", "trigger", "version")})
+
+            if self.step % s.log_every == 0:
+                now = time.perf_counter()
+                sps = (self.step - step_window) / max(now - t_window, 1e-9)
+                t_window, step_window = now, self.step
+                row_out = {"step": self.step, "episodes": self.episode, "steps_per_s": round(sps, 2),
+                           "train_return": self.recent_returns[-1] if self.recent_returns else ""}
+                row_out.update({k: float(v) / n_updates for k, v in sums.items()} if n_updates else {})
+                train_log.append(row_out)
+                for k, v in row_out.items():
+                    if isinstance(v, float | int) and k != "step":
+                        tb.add_scalar(f"train/{k}", v, self.step)
+                sums, n_updates = {}, 0
+                postfix["sps"] = f"{sps:.0f}"
+                bar.set_postfix(postfix, refresh=False)
+            bar.update(1)
+
+            # -- episode boundary: report to the source, checkpoint, reset
+            if terminated or truncated:
+                rows = self.buffer.finish_episode(float(info["episode_return"]))
+                self.reward.on_episode_end(rows, float(info["episode_return"]))
+                self.recent_returns = (self.recent_returns + [float(info["episode_return"])])[-10:]
+                self.episode += 1
+                self.episode_len = 0
+                if self.step >= self._next_ckpt or self.step >= s.steps:
+                    self._checkpoint()
+                obs, _ = self.env.reset()
+
+        bar.close()
+        if not self._checkpointed_at(self.step):
+            self._checkpoint(final_partial_episode=True)
+        self.run_dir.set_status("finished", self.step)
+        self.run_dir.close()
+        return TrainResult(self.last_eval, self.step, time.perf_counter() - t_start)
+
+    # ------------------------------------------------------------------------------------ helpers
+    def _can_sample(self) -> bool:
+        if self.reward.needs_complete_episodes:
+            return self.buffer.completed_size > 0
+        return self.buffer.size > 0
+
+    def _train_fields(self) -> list[str]:
+        base = ["step", "episodes", "steps_per_s", "train_return", "critic_loss", "q_mean", "actor_loss",
+                "entropy", "alpha"]
+        return base + [f for f in getattr(self.reward, "log_fields", ()) if f not in base]
+
+    def _cycle_context(self) -> CycleContext:
+        def rollout(episodes: int, seed_base: int) -> Rollout:
+            return collect_rollout(self.agent, self.eval_env, episodes, self.setup.seed + HOLDOUT_SEED_OFFSET + seed_base,
+                                   self.setup.agent_config.gamma)
+
+        return CycleContext(step=self.step, agent=self.agent, buffer=self.buffer, reward=self.reward, run=self.run_dir,
+                            last_eval=self.last_eval, rollout=rollout)
+
+    def _checkpointed_at(self, step: int) -> bool:
+        return getattr(self, "_last_ckpt_step", -1) == step
+
+    def _checkpoint(self, final_partial_episode: bool = False) -> None:
+        state = {
+            "step": self.step,
+            "episode": self.episode,
+            "final_partial_episode": final_partial_episode,
+            "agent": self.agent.state_dict(),
+            "buffer": self.buffer.state_dict(),
+            "reward": self.reward.state_dict(),
+            "hooks": [h.state_dict() for h in self.setup.hooks],
+            "rng": {
+                "numpy": self.rng.bit_generator.state,
+                "torch": torch.get_rng_state(),
+                "python": random.getstate(),
+                "env": self.env.unwrapped.np_random.bit_generator.state,
+                "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+            },
+            "recent_returns": list(self.recent_returns),
+            "last_eval": None if self.last_eval is None else {
+                "returns": self.last_eval.returns, "lengths": self.last_eval.lengths},
+        }
+        save_checkpoint(self.run_dir.checkpoints, self.step, state)
+        self._last_ckpt_step = self.step
+        while self._next_ckpt <= self.step:
+            self._next_ckpt += self.setup.checkpoint_every
+
+    def _restore(self) -> bool:
+        found = load_latest(self.run_dir.checkpoints)
+        if found is None:
+            if any(self.run_dir.checkpoints.glob("ckpt-*")):
+                raise CheckpointError(f"{self.run_dir.checkpoints}: no checkpoint passes its hash check")
+            return False
+        step, state = found
+        if state.get("final_partial_episode") and step < self.setup.steps:
+            # A run ended mid-episode (its step budget) and is now extended: restart that episode.
+            log.warning("checkpoint %d ended mid-episode; the extended run starts a fresh episode", step)
+        self.step = state["step"]
+        self.episode = state["episode"]
+        self.agent.load_state_dict(state["agent"])
+        self.buffer.load_state_dict(state["buffer"])
+        self.reward.load_state_dict(state["reward"])
+        for hook, hook_state in zip(self.setup.hooks, state["hooks"], strict=True):
+            hook.load_state_dict(hook_state)
+        rng = state["rng"]
+        self.rng.bit_generator.state = rng["numpy"]
+        torch.set_rng_state(rng["torch"])
+        random.setstate(rng["python"])
+        if rng.get("cuda") is not None and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(rng["cuda"])
+        self.env.reset(seed=self.setup.seed)
+        self.env.unwrapped.np_random.bit_generator.state = rng["env"]
+        self._obs, _ = self.env.reset()
+        self.recent_returns = list(state["recent_returns"])
+        if state["last_eval"] is not None:
+            le = state["last_eval"]
+            self.last_eval = EvalResult(np.asarray(le["returns"]), np.asarray(le["lengths"]), [])
+        self._last_ckpt_step = step
+        self._next_ckpt = self.setup.checkpoint_every
+        while self._next_ckpt <= self.step:
+            self._next_ckpt += self.setup.checkpoint_every
+        log.info("resumed from checkpoint at step %d", step)
+        return True
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % (2**32))
+    torch.manual_seed(seed)

@@ -1,0 +1,129 @@
+"""Configuration of the metacognitive monitor.
+
+Table 1 of the paper fixes ``q``, ``N_consecutive``, ``N_B``, ``ΔT`` and ``K_cool``; everything
+else is our choice, documented field by field with the reason for its default.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+
+@dataclass
+class MCMConfig:
+    """Hyperparameters of MCM (section 4.3, Algorithm 1)."""
+
+    q: float = 95.0
+    """Anomaly percentile (Table 1). ``τ_trigger`` is the q-th percentile of the score history.
+    Raised by :meth:`MetacognitiveMonitor.on_backoff`, capped at ``q_max``."""
+
+    n_consecutive: int = 2
+    """Persistence ``N_consecutive`` (Table 1): cycles in a row with ``S > τ_trigger`` to trigger."""
+
+    buffer_size: int = 128
+    """Healthy-buffer capacity ``N_B`` (Table 1), FIFO eviction."""
+
+    delta_t: int = 5000
+    """Outer-cycle length ``ΔT`` in environment steps (Table 1). Used for d_PEG when the step
+    difference between snapshots is unavailable (first cycle, or a non-increasing step)."""
+
+    k_cool: int = 10
+    """Cooldown ``K_cool`` in cycles (Table 1), set after a trigger and after an accepted edit."""
+
+    k_warm: int = 10
+    """Warm-up ``K_warm``: cycles that only fill the buffer. 10 cycles also lets the rolling
+    median/MAD see ``min_history`` values before standardised vectors become informative."""
+
+    buffer_min: int = 16
+    """``N_B,min``: minimum buffer fill before scoring. 16 points give a usable median-heuristic
+    bandwidth in D = 5 while still being reached within the warm-up."""
+
+    min_scores: int = 20
+    """Scores needed in the history before a trigger is allowed (scores are still computed and
+    logged). Our addition to Algorithm 1: a q-th percentile of fewer than ``100/(100-q)`` = 20
+    values is just the maximum, and "the newest score is the largest so far" happens by chance
+    with probability 1/n — without this gate the first scored cycles almost surely false-alarm."""
+
+    ema_beta: float = 0.3
+    """EMA decay ``β`` of the standardised components, ``s_k = β s_{k-1} + (1-β) z_k``. 0.3 keeps
+    the smoothing light: a one-cycle spike leaves a tail of ``β`` (0.3) of its height in the next
+    cycle, so it cannot satisfy the two-cycle persistence requirement on its own, while a step
+    change reaches 91% of its height by the second cycle."""
+
+    window: int = 50
+    """Rolling window (cycles) of the median/MAD standardiser. 50 cycles (250k steps at ΔT=5k) is
+    long enough that a persistent regime shift stays visible for ~25 cycles before the median
+    absorbs it, and short enough to follow training phases."""
+
+    min_history: int = 5
+    """Past values a component needs before it is standardised (``z = 0`` before)."""
+
+    mad_floor_abs: float = 1e-8
+    """Absolute floor of the robust scale ``1.4826·MAD`` (avoids division by zero)."""
+
+    mad_floor_rel: float = 1e-3
+    """Relative floor ``· |median|``: changes below 0.1% of a metric's typical level are noise."""
+
+    z_clip: float = 6.0
+    """Clip of standardised values, bounding one absurd value's effect on the EMA and the KDE."""
+
+    m_base: int = 10
+    """``M_base``: the return baseline is an EMA with span ``M_base`` cycles
+    (rate ``2/(M_base+1)``); a cycle is inserted as healthy only if its return beats it."""
+
+    hyst_fraction: float = 0.25
+    """Hysteresis margin as a fraction of the score spread: ``Δ_hyst = hyst_fraction ·
+    (τ_trigger - median(S_hist))``. Scale-free on purpose: S is in nats, but its spread depends
+    on D and on the bandwidth, so a fixed number of nats would be "small" for one configuration
+    and enormous for another. 0.25 releases a quarter of the way from the threshold toward the
+    typical score."""
+
+    bandwidth_ema: float = 0.05
+    """Rate ``ρ`` of the bandwidth EMA ``h ← (1-ρ) h + ρ h_median`` (a ~20-cycle time constant)."""
+
+    bandwidth_floor: float = 0.05
+    """Lower bound on the KDE bandwidth, in standardised units."""
+
+    top_m: int = 2
+    """Number of metric-level contributors reported on a trigger (ranked by ``|∇ log p|``)."""
+
+    q_max: float = 99.0
+    """Cap on ``q`` under back-off (Algorithm 3, line 24)."""
+
+    gamma: float = 0.99
+    """Discount ``γ`` in d_RPE's target ``r + γ Φ(s')``; must equal the trainer's γ (Table 1)."""
+
+    pvc_eps: float = 1e-8
+    """``ε`` of eq. (16)."""
+
+    rpe_eps: float = 1e-8
+    """``ε`` of eq. (18)."""
+
+    entropy_samples: int = 16
+    """Draws per state when the monitor itself estimates a tanh-squashed policy's entropy."""
+
+    entropy_seed: int = 0
+    """Seed of the fixed noise for that estimate (the same noise every cycle, see metrics)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.q < 100.0:
+            raise ValueError(f"q must be in (0, 100), got {self.q}")
+        if self.n_consecutive < 1 or self.buffer_size < 1 or self.k_cool < 0 or self.k_warm < 0:
+            raise ValueError("n_consecutive, buffer_size >= 1 and k_cool, k_warm >= 0 are required")
+        if self.buffer_min > self.buffer_size:
+            raise ValueError("buffer_min cannot exceed buffer_size")
+        if not 0.0 <= self.ema_beta < 1.0:
+            raise ValueError("ema_beta must be in [0, 1)")
+        if self.m_base < 1 or self.delta_t < 1:
+            raise ValueError("m_base and delta_t must be >= 1")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict of every field."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> MCMConfig:
+        """Build from a dict, ignoring unknown keys (forward compatibility of checkpoints)."""
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in data.items() if k in names})

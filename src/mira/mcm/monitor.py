@@ -1,0 +1,347 @@
+"""The metacognitive monitor: Algorithm 1 (MCM.Diagnose) plus the hooks Algorithm 3 calls.
+
+Per cycle the trainer builds a :class:`CycleSnapshot` and calls :meth:`MetacognitiveMonitor.diagnose`.
+The monitor computes the raw diagnostics (remembering what it needs from the previous cycle: step,
+mean entropy, mean attention), standardises and smooths them, and runs Algorithm 1:
+
+1. warm-up (``k < K_warm`` or ``|B| < N_B,min``): insert d into the buffer, log a NaN score, no trigger;
+2. ``S = -log p_healthy(d)``; append to the score history; ``τ = percentile(history, q)``;
+   bandwidth EMA;
+3. insert d into the buffer iff the cycle's return beats the moving baseline (EMA, span M_base);
+4. ``u`` = consecutive cycles with ``S > τ``;
+5. if the cooldown is running: count it down, no trigger; elif ``u ≥ N_consecutive``: trigger,
+   compute ``∇ log p`` and the top-m contributors, start the cooldown (K_cool).
+
+Two documented additions: a trigger also needs ``min_scores`` real scores (see ``MCMConfig``), and
+the hysteresis of section 4.3.2 — after a trigger the monitor stays *anomalous* until
+``S < τ_release = τ - Δ_hyst``; no new trigger is raised while anomalous, so one persistent
+pathology raises one trigger, not one per cooldown period.
+
+The cooldown is owned here. The trainer must act on ``result.trigger`` alone (Algorithm 3's
+"trigger and c_cool = 0" is already folded in) and report the SRR outcome through
+:meth:`on_edit_accepted` / :meth:`on_backoff`; it must not count the cooldown down itself.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from mira.mcm import metrics
+from mira.mcm.band import stagnation_band
+from mira.mcm.config import MCMConfig
+from mira.mcm.kde import HealthyModel, top_contributors
+from mira.mcm.records import (
+    METRIC_NAMES,
+    Contributor,
+    CycleSnapshot,
+    FloatArray,
+    MCMResult,
+    reading,
+    row_fields,
+)
+from mira.mcm.standardize import RobustStandardizer
+
+__all__ = [
+    "METRIC_NAMES",
+    "Contributor",
+    "CycleSnapshot",
+    "MCMConfig",
+    "MCMResult",
+    "MetacognitiveMonitor",
+    "row_fields",
+    "stagnation_band",
+]
+
+_STATE_VERSION = 1
+
+
+def _finite(x: float | None) -> bool:
+    return x is not None and math.isfinite(x)
+
+
+class MetacognitiveMonitor:
+    """Stateful MCM: diagnostics → robust standardisation → KDE score → persistent-anomaly trigger.
+
+    All state is reachable through :meth:`state_dict` (plain Python values only, so it survives
+    ``torch.save`` / ``torch.load(weights_only=True)``), and a monitor restored from it continues
+    bit-for-bit as the original would have.
+    """
+
+    def __init__(self, config: MCMConfig | None = None) -> None:
+        self.config = config if config is not None else MCMConfig()
+        self._build()
+
+    def _build(self) -> None:
+        c = self.config
+        d = len(METRIC_NAMES)
+        self.q: float = float(c.q)
+        self.cycle: int = 0
+        self.standardizer = RobustStandardizer(
+            d,
+            window=c.window,
+            beta=c.ema_beta,
+            min_history=c.min_history,
+            floor_abs=c.mad_floor_abs,
+            floor_rel=c.mad_floor_rel,
+            z_clip=c.z_clip,
+        )
+        self.model = HealthyModel(
+            d, capacity=c.buffer_size, bandwidth_ema=c.bandwidth_ema, bandwidth_floor=c.bandwidth_floor
+        )
+        self.scores: list[float] = []
+        self.above: int = 0
+        self.cooldown: int = 0
+        self.anomalous: bool = False
+        self.baseline: float | None = None
+        self.prev_step: int | None = None
+        self.prev_entropy: float | None = None
+        self.prev_attention: dict[str, float] | None = None
+
+    # ------------------------------------------------------------------------------ diagnostics
+    def snapshot_entropy(self, snap: CycleSnapshot) -> float:
+        """Mean policy entropy of the snapshot: ``snap.entropy`` if given, else computed.
+
+        Computed as the closed-form Gaussian entropy, or for a squashed policy the tanh-corrected
+        estimate with fixed noise (``entropy_seed``), so it is deterministic across cycles.
+        """
+        if snap.entropy is not None:
+            return float(snap.entropy)
+        if snap.squashed:
+            rng = np.random.default_rng(self.config.entropy_seed)
+            h = metrics.tanh_gaussian_entropy(
+                snap.policy_mean, snap.policy_log_std, self.config.entropy_samples, rng
+            )
+        else:
+            h = metrics.diag_gaussian_entropy(snap.policy_log_std)
+        return float(np.mean(h))
+
+    def raw_metrics(self, snap: CycleSnapshot) -> FloatArray:
+        """Raw diagnostic vector ``[PEG, TPD, PVC, FAP, RPE]`` of a snapshot (no state change).
+
+        Components that need a previous cycle (PEG, FAP) or previous-policy statistics (TPD) are
+        NaN when those are missing; the standardiser treats NaN as missing (``z = 0``).
+        """
+        c = self.config
+        h_now = self.snapshot_entropy(snap)
+        if self.prev_entropy is None or self.prev_step is None:
+            peg = math.nan
+        else:
+            dt = snap.step - self.prev_step
+            peg = metrics.d_peg(h_now, self.prev_entropy, dt if dt > 0 else c.delta_t)
+        if snap.prev_policy_mean is None or snap.prev_policy_log_std is None:
+            tpd = math.nan
+        else:
+            tpd = metrics.d_tpd(
+                snap.policy_mean, snap.policy_log_std, snap.prev_policy_mean, snap.prev_policy_log_std
+            )
+        pvc = metrics.d_pvc(snap.phi_eval, snap.value_eval, c.pvc_eps)
+        fap = (
+            math.nan
+            if self.prev_attention is None
+            else metrics.d_fap(self.prev_attention, snap.attention_mean)
+        )
+        rpe = metrics.d_rpe(snap.phi_s, snap.r_ext, snap.phi_next, c.gamma, snap.terminal, c.rpe_eps)
+        return np.array([peg, tpd, pvc, fap, rpe], dtype=np.float64)
+
+    def diagnose(self, snap: CycleSnapshot) -> MCMResult:
+        """Run one cycle of Algorithm 1 on a trainer snapshot."""
+        raw = self.raw_metrics(snap)
+        self.prev_step = int(snap.step)
+        self.prev_entropy = self.snapshot_entropy(snap)
+        self.prev_attention = {str(k): float(v) for k, v in snap.attention_mean.items()}
+        return self.diagnose_raw(
+            raw,
+            step=snap.step,
+            smoothed_return=snap.smoothed_return,
+            factor_ids_changed=snap.factor_ids_changed,
+        )
+
+    # ------------------------------------------------------------------------------ Algorithm 1
+    def diagnose_raw(
+        self,
+        d_raw: ArrayLike,
+        *,
+        step: int,
+        smoothed_return: float,
+        factor_ids_changed: bool = False,
+    ) -> MCMResult:
+        """Algorithm 1 from an already computed raw vector (the path :meth:`diagnose` takes too)."""
+        c = self.config
+        raw = np.asarray(d_raw, dtype=np.float64).reshape(len(METRIC_NAMES)).copy()
+        k = self.cycle
+        self.cycle += 1
+        z, d = self.standardizer.update(raw)
+
+        g = float(smoothed_return)
+        baseline_before = self.baseline
+        beats = _finite(g) and baseline_before is not None and g > baseline_before
+        if _finite(g):
+            alpha = 2.0 / (c.m_base + 1.0)
+            self.baseline = g if self.baseline is None else self.baseline + alpha * (g - self.baseline)
+
+        common: dict[str, Any] = {
+            "step": int(step),
+            "cycle": k,
+            "d_raw": raw,
+            "z": z,
+            "d": d,
+            "q": self.q,
+            "smoothed_return": g,
+            "factor_ids_changed": bool(factor_ids_changed),
+            "baseline": math.nan if baseline_before is None else float(baseline_before),
+        }
+        zero_grad = {n: 0.0 for n in METRIC_NAMES}
+
+        # Lines 2-4: warm-up — buffer filling only.
+        if len(self.model) < c.buffer_min or k < c.k_warm:
+            self.model.insert(d)
+            self.scores.append(math.nan)
+            return MCMResult(
+                **common,
+                score=math.nan,
+                threshold=math.nan,
+                release_threshold=math.nan,
+                trigger=False,
+                in_cooldown=False,
+                cooldown_left=self.cooldown,
+                buffer_fill=len(self.model),
+                warmup=True,
+                anomalous=self.anomalous,
+                above=self.above,
+                bandwidth=math.nan if self.model.bandwidth is None else self.model.bandwidth,
+                inserted=True,
+                gradient=zero_grad,
+            )
+
+        # Lines 6-7: score, threshold, bandwidth.
+        bandwidth_used = (
+            self.model.bandwidth if self.model.bandwidth is not None else self.model.init_bandwidth()
+        )
+        score = self.model.score(d)
+        self.scores.append(score)
+        hist = np.array([s for s in self.scores if math.isfinite(s)], dtype=np.float64)
+        tau = float(np.percentile(hist, self.q))
+        self.model.update_bandwidth()
+
+        # Lines 8-10: performance-gated insertion.
+        if beats:
+            self.model.insert(d)
+
+        # Line 11 and hysteresis.
+        self.above = self.above + 1 if score > tau else 0
+        delta_hyst = c.hyst_fraction * max(tau - float(np.median(hist)), 0.0)
+        release = tau - delta_hyst
+        if self.anomalous and score < release:
+            self.anomalous = False
+
+        # Lines 12-19: cooldown, then persistence.
+        trigger = False
+        in_cooldown = False
+        gradient = zero_grad
+        contributors: list[Contributor] = []
+        if self.cooldown > 0:
+            self.cooldown -= 1
+            in_cooldown = True
+        elif self.above >= c.n_consecutive and not self.anomalous and hist.size >= c.min_scores:
+            trigger = True
+            grad = self.model.grad_log_density(d)
+            gradient = {n: float(v) for n, v in zip(METRIC_NAMES, grad, strict=True)}
+            contributors = [
+                Contributor(METRIC_NAMES[i], float(d[i]), float(grad[i]), reading(METRIC_NAMES[i], grad[i]))
+                for i in top_contributors(grad, c.top_m)
+            ]
+            self.cooldown = c.k_cool
+            self.anomalous = True
+
+        return MCMResult(
+            **common,
+            score=score,
+            threshold=tau,
+            release_threshold=release,
+            trigger=trigger,
+            in_cooldown=in_cooldown,
+            cooldown_left=self.cooldown,
+            buffer_fill=len(self.model),
+            warmup=False,
+            anomalous=self.anomalous,
+            above=self.above,
+            bandwidth=bandwidth_used,
+            inserted=beats,
+            gradient=gradient,
+            contributors=contributors,
+        )
+
+    def diagnose_stream(
+        self, vectors: Iterable[ArrayLike], returns: Iterable[float], start_step: int = 0
+    ) -> list[MCMResult]:
+        """Feed a sequence of raw vectors with their cycle returns through :meth:`diagnose_raw`.
+
+        Steps advance by ``delta_t`` from ``start_step``. A convenience for tests and offline replay
+        of a ``diagnostics.csv``; it takes exactly the same code path as the trainer's calls.
+        """
+        out = []
+        for i, (v, g) in enumerate(zip(vectors, returns, strict=True)):
+            step = start_step + (i + 1) * self.config.delta_t
+            out.append(self.diagnose_raw(v, step=step, smoothed_return=g))
+        return out
+
+    # ------------------------------------------------------------------------------ Algorithm 3 hooks
+    def on_edit_accepted(self) -> None:
+        """An SRR edit was accepted (Algorithm 3, line 20): start a full cooldown ``K_cool``."""
+        self.cooldown = self.config.k_cool
+
+    def on_backoff(self, delta_q: float = 0.5) -> None:
+        """SRR abstained with back-off (line 24): ``c ← max(c, ⌊K_cool/2⌋)``, ``q ← min(q + Δq, q_max)``."""
+        self.cooldown = max(self.cooldown, self.config.k_cool // 2)
+        self.q = min(self.q + float(delta_q), self.config.q_max)
+
+    @property
+    def buffer_fill(self) -> int:
+        """Current number of vectors in the healthy buffer."""
+        return len(self.model)
+
+    # ------------------------------------------------------------------------------ checkpointing
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to resume: config, q, counters, histories, standardiser, buffer, h."""
+        return {
+            "version": _STATE_VERSION,
+            "config": self.config.to_dict(),
+            "q": self.q,
+            "cycle": self.cycle,
+            "standardizer": self.standardizer.state_dict(),
+            "model": self.model.state_dict(),
+            "scores": [float(s) for s in self.scores],
+            "above": self.above,
+            "cooldown": self.cooldown,
+            "anomalous": self.anomalous,
+            "baseline": self.baseline,
+            "prev_step": self.prev_step,
+            "prev_entropy": self.prev_entropy,
+            "prev_attention": None if self.prev_attention is None else dict(self.prev_attention),
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore a :meth:`state_dict` (its config replaces this monitor's, so resuming is exact)."""
+        version = int(state.get("version", 0))
+        if version != _STATE_VERSION:
+            raise ValueError(f"unsupported MCM state version {version} (expected {_STATE_VERSION})")
+        self.config = MCMConfig.from_dict(dict(state["config"]))
+        self._build()
+        self.q = float(state["q"])
+        self.cycle = int(state["cycle"])
+        self.standardizer.load_state_dict(dict(state["standardizer"]))
+        self.model.load_state_dict(dict(state["model"]))
+        self.scores = [float(s) for s in state["scores"]]
+        self.above = int(state["above"])
+        self.cooldown = int(state["cooldown"])
+        self.anomalous = bool(state["anomalous"])
+        self.baseline = None if state["baseline"] is None else float(state["baseline"])
+        self.prev_step = None if state["prev_step"] is None else int(state["prev_step"])
+        self.prev_entropy = None if state["prev_entropy"] is None else float(state["prev_entropy"])
+        pa = state["prev_attention"]
+        self.prev_attention = None if pa is None else {str(k): float(v) for k, v in pa.items()}

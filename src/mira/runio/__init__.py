@@ -1,0 +1,1 @@
+"""Run directories: atomic files, append-only CSV logs, checkpoints with content hashes."""

@@ -1,0 +1,366 @@
+"""Task cards: what an LLM (or the offline engineer) is told about a task, and how named state
+features are read from observations.
+
+A card is a TOML or YAML file with the Gymnasium environment id, a natural-language description,
+the action spec, the evaluation horizon and a list of named features. Each feature is either an
+observation index (``index = 8``) or a small arithmetic expression over the observation
+(``expr = "1 - 2 * (obs[2] ** 2 + obs[3] ** 2)"``), with units and a one-line meaning. ``source``
+optionally names the MuJoCo quantity the feature reads (``qpos:1``, ``qvel:0``), which the test
+suite checks against the simulator's own layout.
+
+Feature expressions come from a user's own card, but they are still parsed with a whitelist (numbers,
+``obs[i]``, arithmetic, a few NumPy functions) and never passed to ``eval``.
+"""
+
+from __future__ import annotations
+
+import ast
+import tomllib
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from mira.errors import TaskCardError
+
+_CARD_PACKAGE = "mira.tasks.cards"
+
+_EXPR_FUNCS: dict[str, Callable[..., np.ndarray]] = {
+    "abs": np.abs,
+    "sqrt": np.sqrt,
+    "sin": np.sin,
+    "cos": np.cos,
+    "tanh": np.tanh,
+    "arctan2": np.arctan2,
+    "arcsin": np.arcsin,
+    "arccos": np.arccos,
+    "clip": np.clip,
+    "minimum": np.minimum,
+    "maximum": np.maximum,
+}
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One named, documented quantity of the state."""
+
+    name: str
+    units: str
+    doc: str
+    index: int | None = None
+    expr: str | None = None
+    source: str | None = None
+
+    def describe(self) -> str:
+        where = f"obs[{self.index}]" if self.index is not None else str(self.expr)
+        return f"s.{self.name}  [{self.units}]  {self.doc}  (= {where})"
+
+
+class _ExprCompiler:
+    """Compile a feature expression to a function of the observation batch ``[B, obs_dim]``."""
+
+    def __init__(self, feature: str, obs_dim: int | None) -> None:
+        self.feature = feature
+        self.obs_dim = obs_dim
+        self.indices: list[int] = []
+
+    def compile(self, text: str) -> Callable[[np.ndarray], np.ndarray]:
+        try:
+            tree = ast.parse(text, mode="eval")
+        except SyntaxError as exc:
+            raise TaskCardError(f"feature {self.feature!r}: expression {text!r} does not parse: {exc.msg}") from exc
+        return self._node(tree.body)
+
+    def _fail(self, node: ast.AST, why: str) -> TaskCardError:
+        return TaskCardError(f"feature {self.feature!r}: {why} (column {getattr(node, 'col_offset', 0) + 1})")
+
+    def _node(self, node: ast.AST) -> Callable[[np.ndarray], np.ndarray]:
+        if isinstance(node, ast.Constant) and isinstance(node.value, int | float) and not isinstance(
+            node.value, bool
+        ):
+            value = float(node.value)
+            return lambda obs: np.full(obs.shape[0], value, dtype=obs.dtype)
+        if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name) and node.value.id == "obs":
+            if not (isinstance(node.slice, ast.Constant) and type(node.slice.value) is int):
+                raise self._fail(node, "obs must be indexed by an integer constant")
+            idx = node.slice.value
+            if idx < 0 or (self.obs_dim is not None and idx >= self.obs_dim):
+                raise self._fail(node, f"index {idx} is outside the observation (size {self.obs_dim})")
+            self.indices.append(idx)
+            return lambda obs: obs[:, idx]
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub | ast.UAdd):
+            inner = self._node(node.operand)
+            sign = -1.0 if isinstance(node.op, ast.USub) else 1.0
+            return lambda obs: sign * inner(obs)
+        if isinstance(node, ast.BinOp):
+            ops: dict[type, Callable[[Any, Any], Any]] = {
+                ast.Add: np.add,
+                ast.Sub: np.subtract,
+                ast.Mult: np.multiply,
+                ast.Div: np.divide,
+                ast.Pow: np.power,
+            }
+            op = ops.get(type(node.op))
+            if op is None:
+                raise self._fail(node, f"operator {type(node.op).__name__} is not allowed")
+            if isinstance(node.op, ast.Pow) and not (
+                isinstance(node.right, ast.Constant) and isinstance(node.right.value, int | float)
+                and abs(node.right.value) <= 4
+            ):
+                raise self._fail(node, "powers must have a small constant exponent")
+            left, right = self._node(node.left), self._node(node.right)
+            return lambda obs: op(left(obs), right(obs))
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.keywords:
+            fn = _EXPR_FUNCS.get(node.func.id)
+            if fn is None:
+                raise self._fail(node, f"function {node.func.id!r} is not allowed (allowed: {sorted(_EXPR_FUNCS)})")
+            args = [self._node(a) for a in node.args]
+            return lambda obs: fn(*(a(obs) for a in args))
+        raise self._fail(node, f"{type(node).__name__} is not allowed in a feature expression")
+
+
+class StateView:
+    """Read-only, vectorised view of a batch of states: one attribute per named feature (``[B]``)
+    and ``obs`` (``[B, obs_dim]``)."""
+
+    __slots__ = ("_values",)
+
+    def __init__(self, values: dict[str, np.ndarray]) -> None:
+        object.__setattr__(self, "_values", values)
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        values = object.__getattribute__(self, "_values")
+        try:
+            return values[name]  # type: ignore[no-any-return]
+        except KeyError:
+            raise AttributeError(f"the state has no feature {name!r}") from None
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError("the state view is read-only")
+
+    def names(self) -> list[str]:
+        return list(object.__getattribute__(self, "_values"))
+
+
+@dataclass
+class TaskCard:
+    """A Gymnasium environment plus what a reward engineer needs to know about it."""
+
+    name: str
+    env_id: str
+    description: str
+    features: tuple[Feature, ...]
+    action_doc: str
+    eval_horizon: int = 1000
+    action_names: tuple[str, ...] = ()
+    constraints: tuple[str, ...] = ()
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    source_path: str | None = None
+
+    def __post_init__(self) -> None:
+        self._compiled: dict[str, Callable[[np.ndarray], np.ndarray]] = {}
+        self._obs_dim: int | None = None
+
+    @property
+    def feature_names(self) -> list[str]:
+        return [f.name for f in self.features]
+
+    def bind(self, obs_dim: int) -> None:
+        """Check every feature against an observation of ``obs_dim`` entries and compile it."""
+        compiled: dict[str, Callable[[np.ndarray], np.ndarray]] = {}
+        for feat in self.features:
+            if feat.index is not None:
+                if not 0 <= feat.index < obs_dim:
+                    raise TaskCardError(
+                        f"task card {self.name!r}: feature {feat.name!r} reads obs[{feat.index}] but "
+                        f"{self.env_id} observations have {obs_dim} entries"
+                    )
+                compiled[feat.name] = _column(feat.index)
+            else:
+                assert feat.expr is not None
+                compiled[feat.name] = _ExprCompiler(feat.name, obs_dim).compile(feat.expr)
+        self._compiled = compiled
+        self._obs_dim = obs_dim
+
+    @property
+    def obs_dim(self) -> int:
+        if self._obs_dim is None:
+            raise RuntimeError(f"task card {self.name!r} is not bound to an environment yet")
+        return self._obs_dim
+
+    def feature_values(self, obs: np.ndarray) -> dict[str, np.ndarray]:
+        """Every named feature of a batch of observations ``[B, obs_dim]`` as float64 ``[B]`` arrays."""
+        if not self._compiled:
+            self.bind(obs.shape[-1])
+        batch = np.asarray(obs, dtype=np.float64)
+        if batch.ndim == 1:
+            batch = batch[None, :]
+        return {name: np.ascontiguousarray(fn(batch), dtype=np.float64) for name, fn in self._compiled.items()}
+
+    def state_view(self, obs: np.ndarray) -> StateView:
+        """A read-only :class:`StateView` of a batch of observations."""
+        batch = np.array(obs, dtype=np.float64, ndmin=2)
+        values = self.feature_values(batch)
+        values["obs"] = batch
+        for arr in values.values():
+            arr.setflags(write=False)
+        return StateView(values)
+
+    def spec_text(self, action_dim: int | None = None) -> tuple[str, str]:
+        """Human- and LLM-readable state and action specifications."""
+        state = "\n".join(f"- {f.describe()}" for f in self.features)
+        if self._obs_dim is not None:
+            state += f"\n- s.obs  [mixed]  the raw observation vector, shape [B, {self._obs_dim}]"
+        action = self.action_doc.strip()
+        if action_dim is not None:
+            action += f"\n(a has shape [B, {action_dim}], each entry in [-1, 1] after scaling)"
+        return state, action
+
+
+def _column(idx: int) -> Callable[[np.ndarray], np.ndarray]:
+    return lambda obs: obs[:, idx]
+
+
+def builtin_task_names() -> list[str]:
+    """Names of the cards shipped with MIRA."""
+    return sorted(p.name[: -len(".toml")] for p in resources.files(_CARD_PACKAGE).iterdir() if p.name.endswith(".toml"))
+
+
+def _require(data: dict[str, Any], key: str, where: str, kind: type | tuple[type, ...]) -> Any:
+    if key not in data:
+        raise TaskCardError(f"task card {where}: missing required field {key!r}")
+    value = data[key]
+    if not isinstance(value, kind):
+        raise TaskCardError(f"task card {where}: field {key!r} has the wrong type ({type(value).__name__})")
+    return value
+
+
+def card_from_dict(data: dict[str, Any], where: str) -> TaskCard:
+    """Build and validate a card from parsed TOML/YAML; ``where`` names it in error messages."""
+    if not isinstance(data, dict):
+        raise TaskCardError(f"task card {where}: expected a table/mapping at the top level")
+    name = _require(data, "name", where, str)
+    env_id = _require(data, "env_id", where, str)
+    description = _require(data, "description", where, str)
+    raw_features = _require(data, "features", where, list)
+    action = _require(data, "action", where, dict)
+    features: list[Feature] = []
+    seen: set[str] = set()
+    for i, raw in enumerate(raw_features):
+        at = f"{where}, features[{i}]"
+        if not isinstance(raw, dict):
+            raise TaskCardError(f"task card {at}: expected a table")
+        fname = _require(raw, "name", at, str)
+        if not fname.isidentifier() or fname.startswith("_") or fname == "obs":
+            raise TaskCardError(f"task card {at}: feature name {fname!r} is not a valid identifier")
+        if fname in seen:
+            raise TaskCardError(f"task card {at}: duplicate feature {fname!r}")
+        seen.add(fname)
+        index, expr = raw.get("index"), raw.get("expr")
+        if (index is None) == (expr is None):
+            raise TaskCardError(f"task card {at}: feature {fname!r} needs exactly one of 'index' or 'expr'")
+        if index is not None and (type(index) is not int or index < 0):
+            raise TaskCardError(f"task card {at}: feature {fname!r} has a bad index {index!r}")
+        if expr is not None:
+            if not isinstance(expr, str):
+                raise TaskCardError(f"task card {at}: feature {fname!r} expr must be a string")
+            _ExprCompiler(fname, None).compile(expr)  # syntax and whitelist now; bounds once bound
+        features.append(
+            Feature(
+                name=fname,
+                units=str(raw.get("units", "")),
+                doc=str(raw.get("doc", "")),
+                index=index,
+                expr=expr,
+                source=raw.get("source"),
+            )
+        )
+    if not features:
+        raise TaskCardError(f"task card {where}: it declares no features")
+    horizon = data.get("eval_horizon", 1000)
+    if type(horizon) is not int or horizon <= 0:
+        raise TaskCardError(f"task card {where}: eval_horizon must be a positive integer")
+    return TaskCard(
+        name=name,
+        env_id=env_id,
+        description=description.strip(),
+        features=tuple(features),
+        action_doc=str(action.get("doc", "")),
+        action_names=tuple(action.get("names", ())),
+        eval_horizon=horizon,
+        constraints=tuple(data.get("constraints", ())),
+        env_kwargs=dict(data.get("env_kwargs", {})),
+    )
+
+
+def _parse_file(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise TaskCardError(f"task card {path}: cannot read it ({exc.strerror})") from exc
+    try:
+        if path.suffix == ".toml":
+            return tomllib.loads(text)
+        data = yaml.safe_load(text)
+    except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise TaskCardError(f"task card {path}: does not parse: {first}") from exc
+    if not isinstance(data, dict):
+        raise TaskCardError(f"task card {path}: expected a mapping at the top level")
+    return data
+
+
+def load_task(name_or_path: str, check_env: bool = True) -> TaskCard:
+    """A built-in card by name, or a user's ``.toml``/``.yaml`` card by path.
+
+    With ``check_env`` the environment id must be registered with Gymnasium.
+    """
+    builtin = builtin_task_names()
+    if name_or_path in builtin:
+        text = resources.files(_CARD_PACKAGE).joinpath(f"{name_or_path}.toml").read_text(encoding="utf-8")
+        card = card_from_dict(tomllib.loads(text), name_or_path)
+    else:
+        path = Path(name_or_path)
+        if path.suffix not in (".toml", ".yaml", ".yml"):
+            raise TaskCardError(
+                f"unknown task {name_or_path!r}: use one of {', '.join(builtin)} or a path to a .toml/.yaml card"
+            )
+        if not path.is_file():
+            raise TaskCardError(f"task card {path}: no such file")
+        card = card_from_dict(_parse_file(path), str(path))
+        card.source_path = str(path.resolve())
+    if check_env:
+        _check_env_registered(card)
+    return card
+
+
+def _check_env_registered(card: TaskCard) -> None:
+    import gymnasium
+
+    try:
+        gymnasium.spec(card.env_id)
+    except gymnasium.error.Error as exc:
+        raise TaskCardError(
+            f"task card {card.name!r}: environment {card.env_id!r} is not registered with Gymnasium ({exc})"
+        ) from exc
+
+
+def card_to_dict(card: TaskCard) -> dict[str, Any]:
+    """The card as plain data (saved into every run directory)."""
+    feats: Iterable[dict[str, Any]] = (
+        {k: v for k, v in vars(f).items() if v is not None} for f in card.features
+    )
+    return {
+        "name": card.name,
+        "env_id": card.env_id,
+        "description": card.description,
+        "eval_horizon": card.eval_horizon,
+        "constraints": list(card.constraints),
+        "env_kwargs": card.env_kwargs,
+        "action": {"doc": card.action_doc, "names": list(card.action_names)},
+        "features": list(feats),
+    }

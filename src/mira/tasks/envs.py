@@ -1,0 +1,78 @@
+"""Environment construction and the episodic-reward setting of RRD / IRCR / LaRe.
+
+``EpisodicRewardWrapper`` hides the environment's per-step reward from the agent: every step gives 0
+and the episode's last step (termination *or* truncation) gives the sum of all the episode's dense
+rewards, the last step's own reward included. The dense reward of each step stays in
+``info["dense_reward"]`` for the oracle and for diagnostics; sparse methods never read it.
+"""
+
+from __future__ import annotations
+
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+
+from mira.errors import TaskCardError
+from mira.tasks.card import TaskCard
+
+
+class EpisodicRewardWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
+    """Deliver the whole episode's return at its last step and 0 elsewhere."""
+
+    def __init__(self, env: gym.Env[np.ndarray, np.ndarray]) -> None:
+        super().__init__(env)
+        self._episode_sum = 0.0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        self._episode_sum = 0.0
+        return self.env.reset(seed=seed, options=options)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        dense = float(reward)
+        self._episode_sum += dense
+        info["dense_reward"] = dense
+        if terminated or truncated:
+            episodic = self._episode_sum
+            info["episode_return"] = episodic
+            self._episode_sum = 0.0
+            return obs, episodic, terminated, truncated, info
+        return obs, 0.0, terminated, truncated, info
+
+    @property
+    def episode_sum(self) -> float:
+        """Dense return accumulated so far in the running episode (checkpointed with the run)."""
+        return self._episode_sum
+
+    @episode_sum.setter
+    def episode_sum(self, value: float) -> None:
+        self._episode_sum = float(value)
+
+
+def make_env(card: TaskCard, seed: int | None = None, max_episode_steps: int | None = None) -> EpisodicRewardWrapper:
+    """Create the task's environment with actions rescaled to [-1, 1] and the episodic reward.
+
+    The card is bound to the observation size, so a feature index outside the observation is
+    reported here, before any training.
+    """
+    try:
+        kwargs = dict(card.env_kwargs)
+        if max_episode_steps is not None:
+            kwargs["max_episode_steps"] = max_episode_steps
+        env = gym.make(card.env_id, **kwargs)
+    except gym.error.Error as exc:
+        raise TaskCardError(f"task {card.name!r}: cannot create environment {card.env_id!r}: {exc}") from exc
+    obs_space, act_space = env.observation_space, env.action_space
+    if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) != 1:
+        raise TaskCardError(f"task {card.name!r}: MIRA needs a flat Box observation space, got {obs_space}")
+    if not isinstance(act_space, gym.spaces.Box) or len(act_space.shape) != 1:
+        raise TaskCardError(f"task {card.name!r}: MIRA needs a continuous (Box) action space, got {act_space}")
+    card.bind(int(obs_space.shape[0]))
+    if not (np.all(act_space.low == -1.0) and np.all(act_space.high == 1.0)):
+        ones = np.ones(act_space.shape, dtype=np.float32)
+        env = gym.wrappers.RescaleAction(env, min_action=-ones, max_action=ones)
+    wrapped = EpisodicRewardWrapper(env)
+    if seed is not None:
+        wrapped.action_space.seed(seed)
+    return wrapped

@@ -1,0 +1,38 @@
+"""Bad input: one line on stderr, exit status 2, no traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+
+def _run(args: list[str]) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "mira.cli", *args], capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["train", "--task", "walker", "--out", "{tmp}/o"], "unknown task 'walker'"),
+        (["train", "--method", "magic", "--out", "{tmp}/o"], "invalid choice: 'magic'"),
+        (["train", "--algo", "ppo", "--out", "{tmp}/o"], "invalid choice: 'ppo'"),
+        (["train", "--steps", "-5", "--out", "{tmp}/o"], "must be a positive integer"),
+        (["train", "--out", "/proc/mira-cannot-write"], "cannot write there"),
+        (["train", "--out", "{tmp}/full"], "not empty"),
+        (["train", "--resume", "{tmp}/nothing"], "not a run directory"),
+        (["train", "--task", "{tmp}/bad.toml", "--out", "{tmp}/o"], "does not parse"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2(tmp_path: Path, args: list[str], needle: str) -> None:
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("x")
+    (tmp_path / "bad.toml").write_text("name = [unclosed")
+    proc = _run([a.replace("{tmp}", str(tmp_path)) for a in args])
+    assert proc.returncode == 2, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "settotalmass" not in ln]
+    assert len(lines) == 1, proc.stderr
+    assert needle in lines[0]
+    assert "Traceback" not in proc.stderr

@@ -1,0 +1,120 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from mira.errors import TaskCardError
+from mira.tasks import builtin_task_names, load_task, make_env
+
+REQUIRED = {
+    "halfcheetah": {"x_velocity", "z_velocity", "torso_height", "pitch", "pitch_rate"},
+    "humanoidstandup": {"torso_height", "z_velocity", "x_velocity", "y_velocity"},
+    "humanoid": {"torso_height", "z_velocity", "x_velocity", "y_velocity"},
+}
+
+
+def test_builtin_cards_exist_with_required_features() -> None:
+    assert set(REQUIRED) <= set(builtin_task_names())
+    for name, needed in REQUIRED.items():
+        card = load_task(name)
+        assert needed <= set(card.feature_names), name
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_feature_indices_match_mujoco_layout(name: str) -> None:
+    """Set random qpos/qvel in the simulator and check each feature reads the documented quantity."""
+    card = load_task(name)
+    env = gym.make(card.env_id)
+    env.reset(seed=0)
+    base = env.unwrapped
+    rng = np.random.default_rng(0)
+    base.data.qpos[:] = rng.normal(size=base.model.nq)
+    base.data.qvel[:] = rng.normal(size=base.model.nv)
+    obs = base._get_obs()
+    card.bind(obs.shape[0])
+    values = card.feature_values(obs[None, :])
+    checked = 0
+    for feat in card.features:
+        if feat.source is None:
+            continue
+        kind, idx = feat.source.split(":")
+        expected = (base.data.qpos if kind == "qpos" else base.data.qvel)[int(idx)]
+        assert values[feat.name][0] == pytest.approx(expected), feat.name
+        checked += 1
+    assert checked >= 4
+
+
+def test_uprightness_expression_is_one_when_upright() -> None:
+    card = load_task("humanoid")
+    env = make_env(card)
+    obs, _ = env.reset(seed=1)
+    view = card.state_view(obs)
+    assert view.uprightness[0] == pytest.approx(1.0, abs=0.05)
+    with pytest.raises(AttributeError):
+        view.torso_height = np.zeros(1)  # type: ignore[misc]
+    with pytest.raises(ValueError):
+        view.torso_height[0] = 3.0
+
+
+def _write(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+CARD = """
+name = "pendulum"
+env_id = "InvertedPendulum-v5"
+description = "keep the pole upright"
+[action]
+doc = "force on the cart"
+[[features]]
+name = "angle"
+index = {index}
+units = "rad"
+doc = "pole angle"
+"""
+
+
+def test_user_card_toml_and_yaml(tmp_path: Path) -> None:
+    card = load_task(str(_write(tmp_path, "p.toml", CARD.format(index=1))))
+    env = make_env(card)
+    obs, _ = env.reset(seed=0)
+    assert card.feature_values(obs)["angle"][0] == pytest.approx(obs[1])
+    yaml_card = _write(
+        tmp_path, "p.yaml",
+        "name: p\nenv_id: InvertedPendulum-v5\ndescription: d\naction: {doc: force}\n"
+        "features:\n  - {name: angle, expr: 'obs[1] * 2', units: rad, doc: twice}\n",
+    )
+    card2 = load_task(str(yaml_card))
+    make_env(card2)
+    assert card2.feature_values(obs)["angle"][0] == pytest.approx(2 * obs[1])
+
+
+def test_card_with_missing_index_fails_clearly(tmp_path: Path) -> None:
+    card = load_task(str(_write(tmp_path, "p.toml", CARD.format(index=99))))
+    with pytest.raises(TaskCardError, match=r"obs\[99\].*4 entries"):
+        make_env(card)
+
+
+def test_card_with_unknown_env_fails_clearly(tmp_path: Path) -> None:
+    with pytest.raises(TaskCardError, match="NoSuchEnv-v0"):
+        load_task(str(_write(tmp_path, "p.toml", CARD.format(index=0).replace("InvertedPendulum-v5", "NoSuchEnv-v0"))))
+
+
+@pytest.mark.parametrize(
+    ("expr", "message"),
+    [("__import__('os')", "not allowed"), ("obs[1] ** obs[2]", "small constant exponent"), ("obs.T", "not allowed")],
+)
+def test_feature_expressions_are_whitelisted(tmp_path: Path, expr: str, message: str) -> None:
+    text = CARD.format(index=0).replace("index = 0", f'expr = "{expr}"')
+    with pytest.raises(TaskCardError, match=message):
+        load_task(str(_write(tmp_path, "p.toml", text)))
+
+
+def test_unknown_task_name() -> None:
+    with pytest.raises(TaskCardError, match="unknown task 'walker'"):
+        load_task("walker")

@@ -1,0 +1,90 @@
+"""End-to-end runs of ``mira train`` at a few thousand steps (small networks)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from mira.cli import main
+from mira.runio.checkpoint import list_checkpoints
+from mira.runio.csvlog import read_csv
+
+EXPECTED_FILES = ("config.json", "status.json", "eval.csv", "train.csv")
+
+
+def _train(out: Path, fast: list[str], *extra: str, steps: int = 3000) -> int:
+    return main(["train", "--steps", str(steps), "--seed", "0", "--out", str(out), *fast, *extra])
+
+
+def _eval_rows(run: Path) -> list[tuple[str, ...]]:
+    # wall_s is a timing column: everything else must match exactly.
+    return [(r["step"], r["return_mean"], r["return_std"], r["length_mean"]) for r in read_csv(run / "eval.csv")]
+
+
+def _check_run_dir(run: Path, steps: int) -> None:
+    for name in EXPECTED_FILES:
+        assert (run / name).is_file(), name
+    assert any((run / "tb").iterdir())
+    assert list_checkpoints(run / "checkpoints")
+    rows = read_csv(run / "eval.csv")
+    assert int(rows[-1]["step"]) == steps
+    train_rows = read_csv(run / "train.csv")
+    assert train_rows and "critic_loss" in train_rows[0]
+    assert '"finished"' in (run / "status.json").read_text()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("task", "method", "algo"),
+    [
+        ("halfcheetah", "dense", "sac"),
+        ("halfcheetah", "dense", "ddpg"),
+        ("halfcheetah", "sparse", "sac"),
+        ("humanoidstandup", "dense", "sac"),
+        ("humanoid", "sparse", "ddpg"),
+    ],
+)
+def test_train_writes_every_file(tmp_path: Path, fast_train_args: list[str], task: str, method: str, algo: str) -> None:
+    run = tmp_path / "run"
+    assert _train(run, fast_train_args, "--task", task, "--method", method, "--algo", algo) == 0
+    _check_run_dir(run, 3000)
+
+
+@pytest.mark.slow
+def test_same_seed_gives_identical_eval_csv(tmp_path: Path, fast_train_args: list[str]) -> None:
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert _train(a, fast_train_args, steps=1500) == 0
+    assert _train(b, fast_train_args, steps=1500) == 0
+    assert _eval_rows(a) == _eval_rows(b)
+    assert len(_eval_rows(a)) == 2
+
+
+@pytest.mark.slow
+def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path, fast_train_args: list[str]) -> None:
+    steps = "2400"
+    ref = tmp_path / "ref"
+    assert _train(ref, fast_train_args, steps=int(steps)) == 0
+
+    killed = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "mira.cli", "train", "--steps", steps, "--seed", "0", "--out", str(killed),
+           *fast_train_args]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None:
+        if [s for s in list_checkpoints(killed / "checkpoints") if s >= 800]:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "run finished before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert '"running"' in (killed / "status.json").read_text()
+
+    assert main(["train", "--resume", str(killed), "--quiet"]) == 0
+    assert _eval_rows(killed) == _eval_rows(ref)
