@@ -1,7 +1,7 @@
 """From a method name to the reward source and outer-loop hooks it trains with.
 
 This is the only place that knows every method; the trainer only sees a ``RewardSource`` and a list
-of hooks.
+of hooks. Builders import their modules lazily so that a plain ``dense`` run loads no LLM or MCM code.
 """
 
 from __future__ import annotations
