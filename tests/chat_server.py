@@ -30,7 +30,9 @@ class Behaviour:
 
 
 def reply(content: str, *, prompt_tokens: int = 11, completion_tokens: int = 7) -> Behaviour:
-    return Behaviour("reply", content=content, prompt_tokens=prompt_tokens, completion_tokens=completion_tokens)
+    return Behaviour(
+        "reply", content=content, prompt_tokens=prompt_tokens, completion_tokens=completion_tokens
+    )
 
 
 def status(code: int, *, headers: dict[str, str] | None = None, message: str = "scripted error") -> Behaviour:
@@ -76,7 +78,13 @@ class _Handler(BaseHTTPRequestHandler):
         except json.JSONDecodeError:
             parsed = None
         with owner.lock:
-            owner.requests.append({"path": self.path, "json": parsed, "headers": {k.lower(): v for k, v in self.headers.items()}})
+            owner.requests.append(
+                {
+                    "path": self.path,
+                    "json": parsed,
+                    "headers": {k.lower(): v for k, v in self.headers.items()},
+                }
+            )
             behaviour = owner.queue.popleft() if owner.queue else None
         if self.path != "/v1/chat/completions":
             self._send(404, b'{"error": {"message": "not found"}}')

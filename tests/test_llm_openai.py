@@ -8,8 +8,8 @@ from collections.abc import Iterator
 
 import openai
 import pytest
-from chat_server import ChatServer, hang, raw, reply, status
 
+from chat_server import ChatServer, hang, raw, reply, status
 from mira.errors import UsageError
 from mira.llm import (
     LLMBadReplyError,
@@ -31,7 +31,10 @@ def server(monkeypatch: pytest.MonkeyPatch) -> Iterator[ChatServer]:
 
 def _request(**kw: object) -> LLMRequest:
     return LLMRequest(
-        messages=[{"role": "system", "content": "You are a reward engineer."}, {"role": "user", "content": "hi"}],
+        messages=[
+            {"role": "system", "content": "You are a reward engineer."},
+            {"role": "user", "content": "hi"},
+        ],
         purpose="lsfs",
         **kw,  # type: ignore[arg-type]
     )

@@ -21,7 +21,6 @@ from mira.llm.base import LLMBackend
 from mira.llm.budget import BudgetedBackend
 from mira.llm.cache import CachedBackend
 from mira.llm.offline import OfflineEngineer
-from mira.llm.openai_backend import OpenAIBackend
 from mira.llm.script import ScriptBackend
 
 SPEC_HELP = "expected offline, script:FILE or openai:MODEL"
@@ -54,6 +53,8 @@ def make_backend(
     elif kind == "openai" and sep:
         if not arg.strip():
             raise UsageError(f"LLM backend {spec!r}: openai needs a model, openai:MODEL")
+        from mira.llm.openai_backend import OpenAIBackend  # the SDK is slow to import: only when used
+
         inner = OpenAIBackend(
             arg.strip(),
             base_url=base_url,

@@ -213,7 +213,7 @@ def progress_factor(ev: Evidence) -> dict[str, Any] | None:
     for i, f in enumerate(_phi(ev)):
         name = f["name"].lower()
         score = 0.0
-        if any(k in name for k in ("vel", "progress", "forward", "speed", "run")):
+        if any(k in name for k in ("vel", "progress", "forward", "speed", "run", "height")):
             score += 2.0
         used = features_used(f["code"])
         squared = set(squared_features(f["code"]))
@@ -496,10 +496,12 @@ def _strengths(ev: Evidence) -> dict[str, float]:
     if z.get("TPD", 0.0) >= TPD_HIGH_Z and ev.poor_return:
         out["TPD"] = 1.0 + max(z.get("TPD", 0.0), 0.0) + max(-g.get("TPD", 0.0), 0.0)
     if not out:
-        # MCM fired but no single rule's threshold is met: follow the largest pull of the gradient.
-        pulls = {m: abs(ev.grad.get(m, 0.0)) + abs(ev.z.get(m, 0.0)) for m in METRICS}
-        top = max(METRICS, key=lambda m: pulls[m])
-        if pulls[top] > 0:
+        # MCM fired but no rule's threshold is met: follow the largest pull of the evidence, among
+        # the rules whose preconditions hold (Add and Sat only when the return is not improving).
+        pulls = {m: abs(g.get(m, 0.0)) + abs(z.get(m, 0.0)) for m in METRICS}
+        eligible = [m for m in METRICS if pulls[m] > 0 and (ev.poor_return or m in ("PVC", "FAP"))]
+        if eligible:
+            top = max(eligible, key=lambda m: pulls[m])
             out["RPE" if top == "PEG" else top] = 0.5
     return out
 

@@ -17,6 +17,9 @@ from typing import Any
 
 from mira.errors import DiskFullError
 
+# Out of space, over quota, or over the process's file-size limit: all mean "cannot grow a file".
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
 
 def _fsync_dir(directory: Path) -> None:
     fd = os.open(directory, os.O_RDONLY)
@@ -44,7 +47,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
             os.unlink(tmp_name)
         except FileNotFoundError:
             pass
-        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        if exc.errno in _NO_SPACE:
             raise DiskFullError(f"no space left writing {target}: {exc.strerror}") from exc
         raise
     except BaseException:
@@ -86,7 +89,7 @@ def append_line(path: str | os.PathLike[str], line: str) -> None:
             handle.flush()
             os.fsync(handle.fileno())
     except OSError as exc:
-        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        if exc.errno in _NO_SPACE:
             raise DiskFullError(f"no space left appending to {target}: {exc.strerror}") from exc
         raise
 
