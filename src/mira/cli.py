@@ -14,6 +14,7 @@ import os
 import platform
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, NoReturn
 
 import torch
@@ -102,6 +103,17 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--program", default=None, help="start from this factor-program JSON (program methods)")
     t.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
     _add_llm_flags(t)
+
+    f = sub.add_parser("factors", help="reward-factor programs: synthesise, check")
+    fsub = f.add_subparsers(dest="factors_command", required=True, parser_class=_Parser)
+    fs = fsub.add_parser("synth", help="print (or write) the initial factor program of a task (LSFS)")
+    fs.add_argument("--task", required=True)
+    fs.add_argument("--out", default=None, help="write the program JSON here instead of printing it")
+    _add_llm_flags(fs)
+    fc = fsub.add_parser("check", help="static and sandbox checks; exit 0 if admissible, 1 with reasons if not")
+    fc.add_argument("program", help="factor-program JSON file")
+    fc.add_argument("--task", required=True)
+    fc.add_argument("--no-sandbox", action="store_true", help="static checks only")
     return parser
 
 
@@ -180,12 +192,39 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _default_cache() -> Path:
+    return Path(os.environ.get("MIRA_CACHE_DIR", Path.home() / ".cache" / "mira" / "llm"))
+
+
+def cmd_factors(args: argparse.Namespace) -> int:
+    if args.factors_command == "check":
+        from mira.factors.cli_impl import check_program_file
+
+        return check_program_file(args.program, args.task, sandbox=not args.no_sandbox)
+    from mira.config import LLMConfig
+    from mira.factors.program import save_program
+    from mira.lsfs import backend_from_config, synthesize_program
+    from mira.tasks.envs import make_env
+
+    card = load_task(args.task)
+    action_dim = int(make_env(card).action_space.shape[0])  # type: ignore[index]
+    llm = LLMConfig(backend=args.llm, base_url=args.base_url, api_key_env=args.api_key_env,
+                    cache_dir=args.llm_cache, offline_only=args.llm_offline_only)
+    program = synthesize_program(card, backend_from_config(llm, _default_cache(), None), action_dim)
+    if args.out:
+        save_program(program, args.out)
+        print(f"mira: wrote {args.out} ({len(program.factors)} factors)", file=sys.stderr)
+    else:
+        print(json.dumps(program.to_json(), indent=2))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if getattr(args, "quiet", False) else logging.WARNING,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    handlers = {"train": cmd_train}
+    handlers = {"train": cmd_train, "factors": cmd_factors}
     try:
         return handlers[args.command](args)
     except UsageError as exc:

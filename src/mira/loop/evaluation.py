@@ -48,36 +48,36 @@ def evaluate(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base:
 
 
 def collect_rollout(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base: int, gamma: float) -> Rollout:
-    """Held-out episodes of the deterministic policy, with Monte-Carlo discounted returns-to-go."""
-    obs_l, next_l, act_l, rew_l, term_l, ep_l, mc_l, returns = [], [], [], [], [], [], [], []
+    """Held-out episodes of the deterministic policy.
+
+    Only the extrinsic, *episodic* reward enters: ``r_ext`` is 0 except at each episode's last step,
+    and the Monte-Carlo value estimate of a state is its discounted episodic return-to-go
+    ``γ^(T-1-t) · R``. The dense per-step reward is not recorded, so nothing downstream can use it.
+    """
+    obs_l, next_l, act_l, rext_l, term_l, ep_l, mc_l, returns = [], [], [], [], [], [], [], []
     for k in range(episodes):
         obs, _ = env.reset(seed=seed_base + k)
-        done = False
-        rewards: list[float] = []
+        done, length = False, 0
         while not done:
             action = agent.act(obs, deterministic=True)
-            next_obs, _, terminated, truncated, info = env.step(action)
+            next_obs, r_ext, terminated, truncated, info = env.step(action)
             obs_l.append(obs)
             next_l.append(next_obs)
             act_l.append(action)
-            rewards.append(info["dense_reward"])
+            rext_l.append(float(r_ext))
             term_l.append(terminated)
             ep_l.append(k)
             obs = next_obs
+            length += 1
             done = terminated or truncated
-        togo = np.zeros(len(rewards))
-        acc = 0.0
-        for t in range(len(rewards) - 1, -1, -1):
-            acc = rewards[t] + gamma * acc
-            togo[t] = acc
-        mc_l.append(togo)
-        rew_l.extend(rewards)
-        returns.append(sum(rewards))
+        total = float(info["episode_return"])
+        mc_l.append(total * gamma ** np.arange(length - 1, -1, -1, dtype=np.float64))
+        returns.append(total)
     return Rollout(
         obs=np.asarray(obs_l, dtype=np.float32),
         next_obs=np.asarray(next_l, dtype=np.float32),
         actions=np.asarray(act_l, dtype=np.float32),
-        dense_rewards=np.asarray(rew_l),
+        r_ext=np.asarray(rext_l),
         terminated=np.asarray(term_l, dtype=bool),
         episode_index=np.asarray(ep_l),
         returns=np.asarray(returns),

@@ -14,9 +14,10 @@ class Rollout:
     obs: np.ndarray
     next_obs: np.ndarray
     actions: np.ndarray
-    dense_rewards: np.ndarray
+    r_ext: np.ndarray
+    """Extrinsic (episodic) reward of each step: 0 except at an episode's last step."""
     terminated: np.ndarray
     episode_index: np.ndarray
     returns: np.ndarray
     mc_values: np.ndarray
-    """Discounted Monte-Carlo return-to-go of each state (V̂_ext under the frozen policy)."""
+    """Discounted episodic return-to-go of each state (Monte-Carlo V̂_ext under the frozen policy)."""

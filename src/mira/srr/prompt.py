@@ -1,0 +1,156 @@
+"""The SRR request of Appendix A, built from template files.
+
+The same request goes to every backend: its messages are what an LLM reads, and its ``context`` holds
+the same facts as structured data for the offline rule-based engineer (which never parses prose).
+Every fact in the context is also written into the messages, so the response cache (keyed by the
+messages) can never confuse two different requests.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from importlib import resources
+from string import Template
+from typing import Any
+
+from mira.factors.program import FactorProgram
+from mira.llm.base import LLMRequest
+from mira.srr.hypotheses import Hypothesis
+from mira.tasks.card import TaskCard
+
+OPERATOR_DOCS = {
+    "Scale": "Scale(factor, alpha): multiply an existing factor by a scalar alpha.",
+    "Sat": "Sat(factor, lo, hi): clip a factor to [lo, hi] (or a smooth tanh saturation).",
+    "Gate": "Gate(factor, predicate): multiply a factor by a predicate in [0, 1]; state-only for PHI factors.",
+    "Refactor": "Refactor(factor, code): rewrite a factor as an equivalent but loophole-averse expression.",
+    "Add": "Add(new_factor, code, type): introduce a new physically meaningful signal (PHI or AUX).",
+    "Prune": "Prune(factor): remove an ineffective, redundant or detrimental factor.",
+}
+
+
+@dataclass
+class Evidence:
+    """What the monitor found, in the form SRR passes on."""
+
+    step: int
+    d: dict[str, float]
+    """Standardised, smoothed diagnostics by metric (peg, tpd, pvc, fap, rpe)."""
+    d_raw: dict[str, float]
+    score: float | None
+    threshold: float | None
+    gradient: dict[str, float]
+    contributors: list[dict[str, Any]]
+    """Top contributors: {metric, value, gradient, reading}."""
+    recent_return: float
+    baseline_return: float
+    stagnation_band: dict[str, Any] | None
+    attention: dict[str, float]
+    guided: bool = True
+    """False in the no-MCM ablation: no diagnostic vector reaches the prompt."""
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(vars(self))
+
+
+def _template(name: str) -> Template:
+    return Template(resources.files("mira.srr.prompts").joinpath(name).read_text(encoding="utf-8"))
+
+
+def _factor_block(program: FactorProgram) -> str:
+    lines = []
+    for f in program.factors:
+        code = "\n".join("      " + ln for ln in f.code.rstrip("\n").splitlines())
+        lines.append(
+            f"  - name: {f.name}\n    type: {f.type}\n    code: |\n{code}\n    doc: \"{f.doc}\"\n"
+            f"    units: \"{f.units}\"\n    range_hint: \"{f.range_hint}\""
+        )
+    return "\n".join(lines)
+
+
+def _diagnostics_block(ev: Evidence, hypotheses: list[Hypothesis]) -> str:
+    if not ev.guided:
+        return (
+            "DIAGNOSTICS: none (periodic review without diagnostic evidence).\n"
+            f"RECENT_RETURN: {ev.recent_return:.4g} (baseline {ev.baseline_return:.4g})"
+        )
+    vector = ", ".join(f"{k.upper()}={v:.3f}" for k, v in ev.d.items())
+    raw = ", ".join(f"{k.upper()}={v:.4g}" for k, v in ev.d_raw.items())
+    lines = [
+        "DIAGNOSTICS:",
+        f"  vector (robust z-scores, EMA-smoothed): [{vector}]",
+        f"  raw: [{raw}]",
+        f"  anomaly_score: {ev.score if ev.score is None else round(ev.score, 4)}"
+        f" (threshold {ev.threshold if ev.threshold is None else round(ev.threshold, 4)})",
+        f"  direction_to_healthy (KDE gradient): {json.dumps({k.upper(): round(v, 4) for k, v in ev.gradient.items()})}",
+        "  top_contributors:",
+    ]
+    for c in ev.contributors:
+        lines.append(f"    - name: {str(c['metric']).upper()}\n      value: {c['value']:.3f}\n      comment: \"{c['reading']}\"")
+    lines.append(f"  recent_return: {ev.recent_return:.4g} (baseline {ev.baseline_return:.4g})")
+    if ev.stagnation_band:
+        b = ev.stagnation_band
+        lines.append(f"  stagnation_band: {b['feature']} = {b['center']:.4g} ± {b['halfwidth']:.4g}")
+    if ev.attention:
+        lines.append("  factor_attention: " + json.dumps({k: round(v, 4) for k, v in ev.attention.items()}))
+    if hypotheses:
+        lines.append("  failure_hypotheses (preferred operators):")
+        lines += [f"    - {h.operator}: {h.because}" for h in hypotheses]
+    return "\n".join(lines)
+
+
+def posture_feature(card: TaskCard) -> str | None:
+    for name in ("pitch", "uprightness", "torso_height"):
+        if name in card.feature_names:
+            return name
+    return None
+
+
+def build_srr_request(
+    card: TaskCard,
+    program: FactorProgram,
+    evidence: Evidence,
+    hypotheses: list[Hypothesis],
+    max_candidates: int,
+    operators: tuple[str, ...],
+    action_dim: int,
+) -> LLMRequest:
+    state_spec, action_spec = card.spec_text(action_dim)
+    user = _template("srr_user.txt").substitute(
+        task_description=card.description.replace("\n", " "),
+        state_spec="\n".join("  " + ln for ln in state_spec.splitlines()),
+        action_spec=action_spec.replace("\n", " "),
+        constraints="\n".join(f"  - {c}" for c in card.constraints) or "  - none beyond the instructions",
+        version=program.version,
+        factors=_factor_block(program),
+        diagnostics=_diagnostics_block(evidence, hypotheses),
+        operators="\n".join(f"  - {OPERATOR_DOCS[o]}" for o in operators),
+        max_candidates=max_candidates,
+    )
+    system = _template("srr_system.txt").substitute()
+    upper = {k.upper(): v for k, v in evidence.d.items()}
+    context: dict[str, Any] = {
+        "program": program.to_json(),
+        "diagnostics": upper if evidence.guided else {},
+        "raw_diagnostics": {k.upper(): v for k, v in evidence.d_raw.items()} if evidence.guided else {},
+        "gradient": {k.upper(): v for k, v in evidence.gradient.items()} if evidence.guided else {},
+        "anomaly_score": evidence.score,
+        "top_contributors": [
+            {"name": str(c["metric"]).upper(), "value": c["value"], "comment": c["reading"]}
+            for c in evidence.contributors
+        ] if evidence.guided else [],
+        "return_trend": {"recent_mean": evidence.recent_return, "baseline": evidence.baseline_return},
+        "stagnation_band": evidence.stagnation_band if evidence.guided else None,
+        "posture_feature": posture_feature(card),
+        "max_candidates": max_candidates,
+        "allowed_operators": list(operators),
+        "guided": evidence.guided,
+        "features": [{"name": f.name, "units": f.units, "doc": f.doc} for f in card.features],
+        "factor_attention": dict(evidence.attention) if evidence.guided else {},
+    }
+    return LLMRequest(
+        messages=[{"role": "system", "content": system}, {"role": "user", "content": user}],
+        purpose="srr",
+        temperature=0.0,
+        context=context,
+    )

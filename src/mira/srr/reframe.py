@@ -1,0 +1,203 @@
+"""SRR.Reframe (Algorithm 2): evidence → hypotheses → LLM candidates → checks → decision.
+
+Each candidate passes, in order, the parser (schema and factor model), static integrity (AST
+whitelist), sandbox realizability (real states, separate process, limits it cannot lift) and proxy
+efficacy (ROC-AUC > 0.5 with permutation p < 0.05 on value-quantile labels, and J_SRR > 0). The best
+passing candidate by J_SRR is accepted; if none passes, SRR abstains and the caller backs off. A
+failing LLM is a recorded, failed intervention — never a crash. Every step is written into the
+intervention's folder as it happens.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mira.factors.checker import check_program
+from mira.factors.program import FactorProgram, ProgramParseError, code_diff
+from mira.factors.sandbox import SandboxLimits, sandbox_check
+from mira.llm.base import LLMBackend, LLMError
+from mira.runio.atomic import atomic_write_json, atomic_write_text
+from mira.srr.candidates import Candidate, parse_candidates
+from mira.srr.efficacy import proxy_efficacy
+from mira.srr.hypotheses import METRICS, OPERATORS, EditSurrogate, complexity, rule_hypotheses
+from mira.srr.prompt import Evidence, build_srr_request
+from mira.tasks.card import TaskCard
+
+log = logging.getLogger(__name__)
+
+ProxyPotential = Callable[[FactorProgram, np.ndarray], np.ndarray]
+"""``proxy(program, obs[N, obs_dim]) -> Φ̃[N]``: a candidate's PHI factors through the frozen FAB/VPM."""
+
+
+@dataclass
+class SRRConfig:
+    """Reward-editing strictness (Table 1)."""
+
+    max_candidates: int = 3
+    """M: candidate revisions asked for per intervention."""
+    lambda_comp: float = 0.05
+    """λ_comp: complexity penalty in J_SRR."""
+    min_auc: float = 0.5
+    """Accept only candidates whose proxy potential has ROC-AUC above this."""
+    max_p_value: float = 0.05
+    """... with a permutation p-value below this."""
+    permutations: int = 1000
+    """Permutations for the AUC and Spearman tests."""
+    label_quantiles: tuple[float, float] = (0.3, 0.7)
+    """States at or below the first value quantile are negatives, at or above the second positives."""
+    delta_q: float = 0.5
+    """Δq: how much a backoff raises the anomaly percentile (capped at 99)."""
+    operators: tuple[str, ...] = OPERATORS
+    """Admissible edit operators offered to the LLM."""
+    sandbox_timeout_s: float = 15.0
+    """Wall-clock bound of one candidate's sandbox check."""
+
+
+@dataclass
+class SRRDecision:
+    accepted: bool
+    program: FactorProgram
+    reason: str
+    backoff: bool
+    failed: bool = False
+    candidate: int | None = None
+    operators: list[str] = field(default_factory=list)
+    j_srr: float | None = None
+    folder: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        out = {k: v for k, v in asdict(self).items() if k != "program"}
+        out["version"] = self.program.version
+        return out
+
+
+class Reframer:
+    def __init__(
+        self,
+        config: SRRConfig,
+        card: TaskCard,
+        backend: LLMBackend,
+        action_dim: int,
+        surrogate: EditSurrogate | None = None,
+    ) -> None:
+        self.config = config
+        self.card = card
+        self.backend = backend
+        self.action_dim = action_dim
+        self.surrogate = surrogate or EditSurrogate(lambda_comp=config.lambda_comp)
+
+    def reframe(
+        self,
+        folder: Path,
+        program: FactorProgram,
+        evidence: Evidence,
+        eval_obs: np.ndarray,
+        eval_actions: np.ndarray,
+        eval_values: np.ndarray,
+        proxy: ProxyPotential,
+        seed: int,
+    ) -> SRRDecision:
+        cfg = self.config
+        folder.mkdir(parents=True, exist_ok=True)
+        return_is_poor = evidence.recent_return <= evidence.baseline_return
+        hypotheses = rule_hypotheses(evidence.d, return_is_poor) if evidence.guided else []
+        atomic_write_json(folder / "evidence.json", {**evidence.as_dict(),
+                                                     "hypotheses": [h.as_dict() for h in hypotheses]})
+        request = build_srr_request(self.card, program, evidence, hypotheses, cfg.max_candidates, cfg.operators,
+                                    self.action_dim)
+        atomic_write_json(folder / "request.json", request.to_dict())
+
+        started = time.monotonic()
+        try:
+            reply = self.backend.complete(request)
+        except LLMError as exc:
+            return self._finish(folder, SRRDecision(False, program, f"LLM call failed: {type(exc).__name__}: {exc}",
+                                                    backoff=True, failed=True))
+        atomic_write_text(folder / "response.txt", reply.content)
+        try:
+            candidates = parse_candidates(reply.content, program, cfg.max_candidates)
+        except ProgramParseError as exc:
+            return self._finish(folder, SRRDecision(False, program, f"reply rejected before any check: {exc}",
+                                                    backoff=True, failed=True))
+
+        direction = None
+        if evidence.guided and any(evidence.gradient.values()):
+            direction = np.array([evidence.gradient.get(m, 0.0) for m in METRICS])
+        shortlist: list[tuple[float, Candidate]] = []
+        for cand in candidates:
+            passed, j_srr = self._validate(cand, program, eval_obs, eval_actions, eval_values, proxy, direction, seed)
+            if passed and j_srr is not None:
+                shortlist.append((j_srr, cand))
+        atomic_write_json(folder / "candidates.json", [self._candidate_record(c) for c in candidates])
+        log.info("SRR: %d candidates, %d passed, %.1f s", len(candidates), len(shortlist), time.monotonic() - started)
+        if not shortlist:
+            reasons = "; ".join(c.error or c.verdicts.get("rejected", "rejected") for c in candidates)
+            return self._finish(folder, SRRDecision(False, program, f"no candidate passed: {reasons}", backoff=True))
+        j_best, best = max(shortlist, key=lambda t: t[0])
+        assert best.program is not None
+        atomic_write_text(folder / "accepted.diff", code_diff(program, best.program))
+        return self._finish(folder, SRRDecision(True, best.program, f"accepted candidate {best.index}", backoff=False,
+                                                candidate=best.index, operators=best.operators, j_srr=j_best))
+
+    # ------------------------------------------------------------------------------------------------
+    def _validate(
+        self,
+        cand: Candidate,
+        current: FactorProgram,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        values: np.ndarray,
+        proxy: ProxyPotential,
+        direction: np.ndarray | None,
+        seed: int,
+    ) -> tuple[bool, float | None]:
+        cfg = self.config
+        if cand.program is None:
+            cand.verdicts["rejected"] = f"parse: {cand.error}"
+            return False, None
+        static = check_program(cand.program, self.card)
+        cand.verdicts["static"] = {"ok": static.ok, "violations": static.lines()}
+        if not static.ok:
+            cand.verdicts["rejected"] = "static integrity: " + "; ".join(str(v) for v in static.errors)
+            return False, None
+        sandbox = sandbox_check(cand.program, self.card, states=obs, actions=actions,
+                                limits=SandboxLimits(wall_timeout_s=cfg.sandbox_timeout_s))
+        cand.verdicts["sandbox"] = sandbox.to_dict()
+        if not sandbox.ok:
+            cand.verdicts["rejected"] = "sandbox: " + "; ".join(sandbox.lines())
+            return False, None
+        try:
+            phi = np.asarray(proxy(cand.program, obs), dtype=np.float64)
+        except Exception as exc:  # a proxy failure rejects the candidate, it never stops training
+            cand.verdicts["rejected"] = f"proxy potential failed: {type(exc).__name__}: {exc}"
+            return False, None
+        lo, hi = cfg.label_quantiles
+        eff = proxy_efficacy(phi, values, lo_q=lo, hi_q=hi, n_perm=cfg.permutations, seed=seed)
+        code_growth = sum(len(f.code) for f in cand.program.factors) - sum(len(f.code) for f in current.factors)
+        comp = complexity(len(cand.operators), len(cand.program.factors) - len(current.factors), code_growth)
+        j_srr = self.surrogate.score(cand.operators, direction, comp)
+        predicted = dict(zip(METRICS, self.surrogate.predict(cand.operators).round(4).tolist(), strict=True))
+        cand.verdicts["efficacy"] = {**eff.as_dict(), "j_srr": j_srr, "complexity": comp, "predicted_delta_d": predicted}
+        ok = eff.auc > cfg.min_auc and eff.auc_p < cfg.max_p_value and j_srr > 0
+        if not ok:
+            cand.verdicts["rejected"] = (f"proxy efficacy: AUC {eff.auc:.3f} (p {eff.auc_p:.3g}), J_SRR {j_srr:.3f} "
+                                         f"(needs AUC > {cfg.min_auc}, p < {cfg.max_p_value}, J_SRR > 0)")
+        return ok, j_srr
+
+    @staticmethod
+    def _candidate_record(c: Candidate) -> dict[str, Any]:
+        return {"index": c.index, "operators": c.operators, "edits": c.edits, "parse_error": c.error,
+                "program": None if c.program is None else c.program.to_json(), "verdicts": c.verdicts}
+
+    @staticmethod
+    def _finish(folder: Path, decision: SRRDecision) -> SRRDecision:
+        decision.folder = str(folder)
+        atomic_write_json(folder / "decision.json", decision.as_dict())
+        return decision
