@@ -21,7 +21,7 @@ import torch
 
 from mira import __version__
 from mira.agents import ALGOS
-from mira.config import TrainConfig, from_dict, to_dict
+from mira.config import TrainConfig, apply_override, from_dict, to_dict
 from mira.errors import DiskFullError, MiraError, UsageError
 from mira.methods import METHODS, build_method
 from mira.tasks.card import builtin_task_names, card_to_dict, load_task
@@ -101,6 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
     t.add_argument("--threads", type=_positive_int, default=None, help="PyTorch intra-op threads")
     t.add_argument("--program", default=None, help="start from this factor-program JSON (program methods)")
+    t.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override any config field, e.g. --set mira.mcm.delta_t=1000 --set hars.joint=false")
     t.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
     _add_llm_flags(t)
 
@@ -127,6 +129,8 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
     cfg.agent.batch_size, cfg.agent.lr, cfg.agent.hidden = args.batch_size, args.lr, args.hidden
     cfg.llm.backend, cfg.llm.base_url, cfg.llm.api_key_env = args.llm, args.base_url, args.api_key_env
     cfg.llm.cache_dir, cfg.llm.offline_only = args.llm_cache, args.llm_offline_only
+    for assignment in args.overrides:
+        apply_override(cfg, assignment)
     return cfg
 
 

@@ -4,12 +4,16 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import types
 import typing
 from dataclasses import dataclass, field
 from typing import Any
 
 from mira.agents.base import AgentConfig
+from mira.baselines.config import BaselinesConfig
+from mira.loop.outer_config import OuterLoopConfig
+from mira.shaping.config import HarsConfig
 
 
 @dataclass
@@ -74,6 +78,12 @@ class TrainConfig:
     """LLM backend settings (methods that use factor programs)."""
     program: str | None = None
     """Start from this factor-program JSON instead of asking the LLM (methods that use programs)."""
+    hars: HarsConfig = field(default_factory=HarsConfig)
+    """HARS inner-loop shaping (methods with a learned potential)."""
+    baselines: BaselinesConfig = field(default_factory=BaselinesConfig)
+    """Comparison baselines LaRe, RD, IRCR and VIB (each method reads its own section)."""
+    mira: OuterLoopConfig = field(default_factory=OuterLoopConfig)
+    """MIRA's outer loop: monitor (MCM), reframer (SRR) and the ablation mode."""
 
 
 def to_dict(obj: Any) -> Any:
@@ -111,3 +121,48 @@ def _is_tuple_hint(hint: Any) -> bool:
     if origin in (typing.Union, types.UnionType):
         return any(_is_tuple_hint(a) for a in typing.get_args(hint))
     return False
+
+
+def apply_override(cfg: Any, assignment: str) -> None:
+    """Set a nested field from ``dotted.path=value`` (``--set mira.mcm.delta_t=1000``).
+
+    The value is parsed as JSON when it can be (numbers, true/false, null, lists), else taken as a
+    string, and must match the type of the field's current value.
+    """
+    from mira.errors import UsageError
+
+    path, sep, text = assignment.partition("=")
+    if not sep or not path:
+        raise UsageError(f"--set {assignment!r}: expected KEY=VALUE, e.g. mira.mcm.delta_t=1000")
+    *parents, leaf = path.strip().split(".")
+    target = cfg
+    for part in parents:
+        if not dataclasses.is_dataclass(target) or not hasattr(target, part):
+            raise UsageError(f"--set {path}: no section {part!r}")
+        target = getattr(target, part)
+    if not dataclasses.is_dataclass(target) or leaf not in {f.name for f in dataclasses.fields(target)}:
+        raise UsageError(f"--set {path}: no field {leaf!r}")
+    current = getattr(target, leaf)
+    if dataclasses.is_dataclass(current):
+        raise UsageError(f"--set {path}: is a section; set one of its fields")
+    try:
+        value: Any = json.loads(text)
+    except json.JSONDecodeError:
+        value = text
+    if isinstance(current, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(current, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(current, float):
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    elif isinstance(current, tuple):
+        ok = isinstance(value, list)
+        value = tuple(value) if ok else value
+    elif isinstance(current, str):
+        ok, value = True, str(value) if not isinstance(value, str) else value
+    else:  # None or other: accept what JSON gave
+        ok = True
+    if not ok:
+        raise UsageError(f"--set {path}={text}: expected a {type(current).__name__} like {current!r}")
+    setattr(target, leaf, value)

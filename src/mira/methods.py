@@ -34,9 +34,43 @@ def _sparse(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
     return MethodParts(SparseReward(), [], "episodic reward only (return at the episode's last step)")
 
 
+def _hars(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
+    from mira.shaping.method import build_hars
+
+    return build_hars(config, card, run_dir)
+
+
+def _baseline(method: str) -> MethodBuilder:
+    def build(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
+        from mira.baselines.factory import build_baseline
+
+        reward, description = build_baseline(method, config, card, run_dir)
+        return MethodParts(reward, [], description)
+
+    return build
+
+
+def _mira(method: str) -> MethodBuilder:
+    def build(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
+        from mira.loop.mira_method import build_mira
+
+        parts: MethodParts = build_mira(config, card, run_dir, method)
+        return parts
+
+    return build
+
+
 METHODS: dict[str, MethodBuilder] = {
+    "mira": _mira("mira"),
+    "mira-no-mcm": _mira("mira-no-mcm"),
+    "mira-no-srr": _mira("mira-no-srr"),
     "dense": _dense,
     "sparse": _sparse,
+    "hars": _hars,
+    "lare": _baseline("lare"),
+    "rd": _baseline("rd"),
+    "ircr": _baseline("ircr"),
+    "vib": _baseline("vib"),
 }
 
 

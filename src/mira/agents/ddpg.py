@@ -76,6 +76,17 @@ class DDPG:
         obs = obs.to(self.device)
         return self.critic(obs, self.actor(obs))[0]
 
+    def actor_state(self) -> dict[str, torch.Tensor]:
+        """A frozen copy of the policy's parameters (the monitor's snapshot of this cycle's policy)."""
+        return {k: v.detach().clone() for k, v in self.actor.state_dict().items()}
+
+    @torch.no_grad()
+    def policy_stats_with(self, actor_state: dict[str, torch.Tensor], obs: torch.Tensor) -> PolicyStats:
+        """Policy statistics (Gaussian surrogate) of a snapshot taken by :meth:`actor_state` on ``obs``."""
+        mean = torch.func.functional_call(self.actor, actor_state, (obs.to(self.device),)).cpu().numpy()
+        log_std = np.full_like(mean, math.log(max(self._noise_std, 1e-6)))
+        return PolicyStats(mean, log_std, squashed=False)
+
     def state_dict(self) -> dict[str, Any]:
         return {
             "actor": self.actor.state_dict(),

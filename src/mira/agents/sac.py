@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch.nn import functional as F
 
 from mira.agents.base import AgentConfig, PolicyStats
-from mira.agents.networks import EnsembleQ, SquashedGaussianActor, make_adam, polyak_update
+from mira.agents.networks import AdamStepper, EnsembleQ, SquashedGaussianActor, make_adam, polyak_update
 from mira.replay import Batch
 
 
@@ -35,6 +36,9 @@ class SAC:
         self.actor_opt = make_adam(list(self.actor.parameters()), config.lr)
         self.critic_opt = make_adam(list(self.critic.parameters()), config.lr)
         self.alpha_opt = make_adam([self.log_alpha], config.lr)
+        self._critic_step = AdamStepper(self.critic_opt)
+        self._actor_step = AdamStepper(self.actor_opt)
+        self._actor_alpha_step = AdamStepper(self.actor_opt, self.alpha_opt)
         self.updates = 0
 
     @torch.inference_mode()
@@ -46,37 +50,40 @@ class SAC:
     def update(self, batch: Batch, reward: torch.Tensor) -> dict[str, torch.Tensor]:
         cfg = self.config
         alpha = self.log_alpha.detach().exp()
+        critic_params = self.critic.params()
 
         # Critic: soft Bellman target from the target critics; truncation is not a terminal.
         with torch.no_grad():
             next_action, next_logp = self.actor.sample(batch.next_obs)
             q_next = self.critic_target(batch.next_obs, next_action).min(0).values - alpha * next_logp
-        target = reward + cfg.gamma * (1.0 - batch.terminated) * q_next
-        q = self.critic(batch.obs, batch.action)
-        critic_loss = (q - target.unsqueeze(0)).pow(2).mean(1).sum()
-        self.critic_opt.zero_grad(set_to_none=True)
+            bootstrap = cfg.gamma * (1.0 - batch.terminated) * q_next
+        # Outside no_grad: a reward that requires grad (HARS's joint mode) gets the critic loss's gradient.
+        target = reward + bootstrap
+        q = self.critic(batch.obs, batch.action, critic_params)
+        # sum over critics of the mean squared TD error (mse_loss sums [E, B], then / B).
+        critic_loss = F.mse_loss(q, target.expand_as(q), reduction="sum") / q.shape[1]
+        self._critic_step.zero_grad()
         critic_loss.backward()
-        self.critic_opt.step()
+        self._critic_step.step()
         self.updates += 1
         metrics = {"critic_loss": critic_loss.detach(), "q_mean": q.detach().mean(), "alpha": alpha}
         if self.updates % cfg.policy_delay:
             return metrics
 
-        # Actor: maximise min-Q minus alpha log-prob; critics get no gradient from this loss.
-        self.critic.requires_grad_(False)
+        # Actor: maximise min-Q minus alpha log-prob; the critics run on detached parameters, so this
+        # loss gives them no gradient (and the freshly updated critics are used, as before).
         action, logp = self.actor.sample(batch.obs)
-        q_pi = self.critic(batch.obs, action).min(0).values
+        q_pi = self.critic(batch.obs, action, [p.detach() for p in critic_params]).min(0).values
         actor_loss = (alpha * logp - q_pi).mean()
-        self.actor_opt.zero_grad(set_to_none=True)
+        self._actor_step.zero_grad()
         actor_loss.backward()
-        self.actor_opt.step()
-        self.critic.requires_grad_(True)
-
         if cfg.autotune_alpha:
-            alpha_loss = -(self.log_alpha * (logp.detach() + self.target_entropy)).mean()
-            self.alpha_opt.zero_grad(set_to_none=True)
-            alpha_loss.backward()
-            self.alpha_opt.step()
+            # d/d log_alpha of -mean(log_alpha * (logp + target_entropy)), without a backward pass.
+            with torch.no_grad():
+                self.log_alpha.grad = (logp.detach() + self.target_entropy).mean().neg_()
+            self._actor_alpha_step.step()  # actor and temperature in one fused Adam call
+        else:
+            self._actor_step.step()
         polyak_update(self.critic, self.critic_target, cfg.tau)
         metrics.update(actor_loss=actor_loss.detach(), entropy=-logp.detach().mean())
         return metrics
@@ -91,6 +98,16 @@ class SAC:
         """Critic estimate of the state value under the current (deterministic) policy."""
         obs = obs.to(self.device)
         return self.critic(obs, self.actor.deterministic(obs)).min(0).values
+
+    def actor_state(self) -> dict[str, torch.Tensor]:
+        """A frozen copy of the policy's parameters (the monitor's snapshot of this cycle's policy)."""
+        return {k: v.detach().clone() for k, v in self.actor.state_dict().items()}
+
+    @torch.no_grad()
+    def policy_stats_with(self, actor_state: dict[str, torch.Tensor], obs: torch.Tensor) -> PolicyStats:
+        """Policy statistics of a snapshot taken by :meth:`actor_state` on ``obs``."""
+        mean, log_std = torch.func.functional_call(self.actor, actor_state, (obs.to(self.device),))
+        return PolicyStats(mean.cpu().numpy(), log_std.cpu().numpy(), squashed=True)
 
     def state_dict(self) -> dict[str, Any]:
         return {

@@ -28,6 +28,7 @@ from mira.loop.rollout import Rollout
 from mira.replay import ReplayBuffer
 from mira.rewards.base import RewardContext, RewardSource
 from mira.runio.checkpoint import load_latest, save_checkpoint
+from mira.runio.csvlog import rewind_csv
 from mira.runio.rundir import RunDir
 from mira.tasks.card import TaskCard
 from mira.tasks.envs import EpisodicRewardWrapper, make_env
@@ -107,8 +108,9 @@ class Trainer:
         evals = self.run_dir.eval_log()
         train_log = self.run_dir.csv_log("train.csv", self._train_fields())
         if resumed:
-            evals.rewind(self.step)
-            train_log.rewind(self.step)
+            # Rows written after the checkpoint will be written again, identically: drop them first.
+            for csv_path in sorted(self.run_dir.path.glob("*.csv")):
+                rewind_csv(csv_path, self.step)
         tb = self.run_dir.tensorboard(purge_step=self.step if resumed else None)
         self.run_dir.set_status("running", self.step)
         if self._obs is None:
@@ -185,7 +187,7 @@ class Trainer:
             if terminated or truncated:
                 rows = self.buffer.finish_episode(float(info["episode_return"]))
                 self.reward.on_episode_end(rows, float(info["episode_return"]))
-                self.recent_returns = (self.recent_returns + [float(info["episode_return"])])[-10:]
+                self.recent_returns = [*self.recent_returns, float(info["episode_return"])][-10:]
                 self.episode += 1
                 self.episode_len = 0
                 if self.step >= self._next_ckpt or self.step >= s.steps:

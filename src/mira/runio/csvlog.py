@@ -76,3 +76,11 @@ def read_csv(path: str | os.PathLike[str]) -> list[dict[str, str]]:
     if raw and not raw.endswith("\n"):
         raw = raw[: raw.rfind("\n") + 1]
     return list(csv.DictReader(io.StringIO(raw)))
+
+
+def rewind_csv(path: str | os.PathLike[str], step: int, key: str = "step") -> None:
+    """Drop the rows of a CSV log (with its own header) logged after ``step``."""
+    raw = Path(path).read_text(encoding="utf-8")
+    header = next(csv.reader([raw.split("\n", 1)[0]]), [])
+    if key in header:
+        CsvLog(path, header).rewind(step, key)

@@ -25,8 +25,9 @@ from mira.factors.sandbox import SandboxLimits, sandbox_check
 from mira.llm.base import LLMBackend, LLMError
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.srr.candidates import Candidate, parse_candidates
+from mira.srr.config import SRRConfig
 from mira.srr.efficacy import proxy_efficacy
-from mira.srr.hypotheses import METRICS, OPERATORS, EditSurrogate, complexity, rule_hypotheses
+from mira.srr.hypotheses import METRICS, EditSurrogate, complexity, rule_hypotheses
 from mira.srr.prompt import Evidence, build_srr_request
 from mira.tasks.card import TaskCard
 
@@ -34,30 +35,6 @@ log = logging.getLogger(__name__)
 
 ProxyPotential = Callable[[FactorProgram, np.ndarray], np.ndarray]
 """``proxy(program, obs[N, obs_dim]) -> Φ̃[N]``: a candidate's PHI factors through the frozen FAB/VPM."""
-
-
-@dataclass
-class SRRConfig:
-    """Reward-editing strictness (Table 1)."""
-
-    max_candidates: int = 3
-    """M: candidate revisions asked for per intervention."""
-    lambda_comp: float = 0.05
-    """λ_comp: complexity penalty in J_SRR."""
-    min_auc: float = 0.5
-    """Accept only candidates whose proxy potential has ROC-AUC above this."""
-    max_p_value: float = 0.05
-    """... with a permutation p-value below this."""
-    permutations: int = 1000
-    """Permutations for the AUC and Spearman tests."""
-    label_quantiles: tuple[float, float] = (0.3, 0.7)
-    """States at or below the first value quantile are negatives, at or above the second positives."""
-    delta_q: float = 0.5
-    """Δq: how much a backoff raises the anomaly percentile (capped at 99)."""
-    operators: tuple[str, ...] = OPERATORS
-    """Admissible edit operators offered to the LLM."""
-    sandbox_timeout_s: float = 15.0
-    """Wall-clock bound of one candidate's sandbox check."""
 
 
 @dataclass
@@ -99,8 +76,9 @@ class Reframer:
         program: FactorProgram,
         evidence: Evidence,
         eval_obs: np.ndarray,
-        eval_actions: np.ndarray,
         eval_values: np.ndarray,
+        sandbox_obs: np.ndarray,
+        sandbox_actions: np.ndarray,
         proxy: ProxyPotential,
         seed: int,
     ) -> SRRDecision:
@@ -132,7 +110,8 @@ class Reframer:
             direction = np.array([evidence.gradient.get(m, 0.0) for m in METRICS])
         shortlist: list[tuple[float, Candidate]] = []
         for cand in candidates:
-            passed, j_srr = self._validate(cand, program, eval_obs, eval_actions, eval_values, proxy, direction, seed)
+            passed, j_srr = self._validate(cand, program, eval_obs, sandbox_obs, sandbox_actions, eval_values, proxy,
+                                           direction, seed)
             if passed and j_srr is not None:
                 shortlist.append((j_srr, cand))
         atomic_write_json(folder / "candidates.json", [self._candidate_record(c) for c in candidates])
@@ -152,7 +131,8 @@ class Reframer:
         cand: Candidate,
         current: FactorProgram,
         obs: np.ndarray,
-        actions: np.ndarray,
+        sandbox_obs: np.ndarray,
+        sandbox_actions: np.ndarray,
         values: np.ndarray,
         proxy: ProxyPotential,
         direction: np.ndarray | None,
@@ -167,10 +147,15 @@ class Reframer:
         if not static.ok:
             cand.verdicts["rejected"] = "static integrity: " + "; ".join(str(v) for v in static.errors)
             return False, None
-        sandbox = sandbox_check(cand.program, self.card, states=obs, actions=actions,
-                                limits=SandboxLimits(wall_timeout_s=cfg.sandbox_timeout_s))
-        cand.verdicts["sandbox"] = sandbox.to_dict()
-        if not sandbox.ok:
+        # Factors the current program already has, unchanged, were admitted before: only what the candidate
+        # changes or adds goes through the sandbox again.
+        known = {(f.name, f.code) for f in current.factors}
+        changed = [f for f in cand.program.factors if (f.name, f.code) not in known]
+        if changed:
+            sandbox = sandbox_check(cand.program.with_factors(changed), self.card, states=sandbox_obs,
+                                    actions=sandbox_actions, limits=SandboxLimits(wall_timeout_s=cfg.sandbox_timeout_s))
+            cand.verdicts["sandbox"] = sandbox.to_dict()
+        if changed and not sandbox.ok:
             cand.verdicts["rejected"] = "sandbox: " + "; ".join(sandbox.lines())
             return False, None
         try:

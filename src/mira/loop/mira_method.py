@@ -1,0 +1,31 @@
+"""The ``mira``, ``mira-no-mcm`` and ``mira-no-srr`` methods: HARS shaping plus MIRA's outer loop."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+from mira.config import TrainConfig
+from mira.lsfs import backend_from_config
+from mira.loop.outer import MiraOuterLoop, save_program_version
+from mira.shaping.method import _action_dim, initial_program
+from mira.tasks.card import TaskCard
+
+MODES = {"mira": "full", "mira-no-mcm": "no-mcm", "mira-no-srr": "no-srr"}
+
+
+def build_mira(config: TrainConfig, card: TaskCard, run_dir: Path, method: str):  # type: ignore[no-untyped-def]
+    from mira.methods import MethodParts
+    from mira.shaping.factors import ProgramFactorSource
+    from mira.shaping.source import HarsReward
+
+    mode = MODES[method]
+    program = initial_program(config, card, run_dir)
+    save_program_version(run_dir / "programs", None, program)
+    reward = HarsReward(ProgramFactorSource(program, card), config.hars)
+    backend = None
+    if mode != "no-srr":
+        backend = backend_from_config(config.llm, run_dir / "llm" / "cache", run_dir)
+    outer = MiraOuterLoop(replace(config.mira, mode=mode), card, reward, backend, program, _action_dim(card))
+    what = {"full": "MCM triggers SRR", "no-mcm": "periodic unguided SRR (no MCM)", "no-srr": "MCM only (no SRR)"}
+    return MethodParts(reward, [outer], f"MIRA ({what[mode]}) over HARS with program v0 ({len(program.factors)} factors)")

@@ -1,0 +1,203 @@
+"""MIRA's outer loop (Algorithm 3, lines 14-29) as a trainer hook: monitor every ΔT steps, reframe on
+a trigger, and hand an accepted program to the inner loop.
+
+Each cycle the hook rolls out held-out episodes with the current policy frozen (deterministic, fixed
+episode seeds: the documented protocol), evaluates on those states what the monitor needs — policy
+statistics of this cycle's and the previous cycle's policy on the *same* states, Φ(s), the attention
+over factors, Φ(s') and the extrinsic reward for the residual, and the Monte-Carlo extrinsic value
+(discounted episodic return-to-go) — and packs them into a :class:`~mira.mcm.records.CycleSnapshot`.
+On a trigger (or, in the no-MCM ablation, on a fixed schedule) SRR proposes, checks and maybe
+accepts a new program; on acceptance HARS re-initialises ϕ, φ and recomputes the buffer's factors
+while θ and ψ are kept, and the monitor starts its cooldown; on abstention it backs off.
+
+Ablations (section 5.4): ``no-srr`` runs the monitor and logs it but never edits; ``no-mcm`` calls
+SRR every ``periodic_cycles`` cycles (at most ``periodic_max`` times), without diagnostic evidence.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+import torch
+
+from mira.factors.program import FactorProgram, code_diff
+from mira.llm.base import LLMBackend
+from mira.llm.factory import backend_state_dict, load_backend_state_dict
+from mira.loop.hooks import CycleContext
+from mira.loop.outer_config import OuterLoopConfig
+from mira.mcm.band import stagnation_band
+from mira.mcm.monitor import MetacognitiveMonitor
+from mira.mcm.records import METRIC_NAMES, CycleSnapshot, MCMResult, row_fields
+from mira.runio.atomic import atomic_write_json, atomic_write_text
+from mira.runio.csvlog import CsvLog
+from mira.shaping.factors import ProgramFactorSource
+from mira.shaping.source import HarsReward
+from mira.srr.hypotheses import EditSurrogate
+from mira.srr.prompt import Evidence
+from mira.srr.reframe import Reframer, SRRDecision
+from mira.tasks.card import TaskCard
+
+log = logging.getLogger(__name__)
+
+
+class MiraOuterLoop:
+    def __init__(
+        self,
+        config: OuterLoopConfig,
+        card: TaskCard,
+        hars: HarsReward,
+        backend: LLMBackend | None,
+        program: FactorProgram,
+        action_dim: int,
+    ) -> None:
+        if config.mode not in ("full", "no-mcm", "no-srr"):
+            raise ValueError(f"unknown outer-loop mode {config.mode!r}")
+        self.config = config
+        self.interval = config.mcm.delta_t
+        self.card = card
+        self.hars = hars
+        self.backend = backend
+        self.program = program
+        self.monitor = MetacognitiveMonitor(config.mcm)
+        self.surrogate = EditSurrogate(lambda_comp=config.srr.lambda_comp)
+        self.reframer = None if backend is None else Reframer(config.srr, card, backend, action_dim, self.surrogate)
+        self.cycle = 0
+        self.interventions = 0
+        self.prev_actor: dict[str, torch.Tensor] | None = None
+        self.pending_observation: dict[str, Any] | None = None
+        self.band_feature = config.band_feature or ("torso_height" if "torso_height" in card.feature_names else None)
+        self._diagnostics: CsvLog | None = None
+
+    # ------------------------------------------------------------------------------------------- cycle
+    def on_cycle(self, ctx: CycleContext) -> dict[str, float]:
+        cfg = self.config
+        rollout = ctx.rollout(cfg.holdout_episodes, 0)
+        keep = np.linspace(0, len(rollout.obs) - 1, min(cfg.holdout_max_states, len(rollout.obs))).astype(int)
+        obs, next_obs = rollout.obs[keep], rollout.next_obs[keep]
+        obs_t = torch.as_tensor(obs)
+        stats = ctx.agent.policy_stats(obs_t)
+        prev_mean = prev_log_std = None
+        if self.prev_actor is not None:
+            prev = ctx.agent.policy_stats_with(self.prev_actor, obs_t)
+            prev_mean, prev_log_std = prev.mean, prev.log_std
+        self.prev_actor = ctx.agent.actor_state()
+
+        phi_s = self.hars.potential(obs).cpu().numpy().astype(np.float64)
+        phi_next = self.hars.potential(next_obs).cpu().numpy().astype(np.float64)
+        terminal = rollout.terminated[keep].astype(np.float64)
+        attention = self.hars.attention(obs)
+        recent = float(rollout.returns.mean())
+        snapshot = CycleSnapshot(
+            step=ctx.step, policy_mean=stats.mean.astype(np.float64), policy_log_std=stats.log_std.astype(np.float64),
+            squashed=stats.squashed, prev_policy_mean=prev_mean, prev_policy_log_std=prev_log_std,
+            phi_eval=phi_s, value_eval=rollout.mc_values[keep], attention_mean=attention,
+            phi_s=phi_s, r_ext=rollout.r_ext[keep], phi_next=phi_next * (1.0 - terminal), terminal=terminal,
+            smoothed_return=recent, factor_ids_changed=False,
+        )
+        result = self.monitor.diagnose(snapshot)
+        self._log(ctx, result)
+        self._observe_pending(result)
+
+        wants_srr = False
+        if cfg.mode == "full":
+            wants_srr = result.trigger
+        elif cfg.mode == "no-mcm":
+            wants_srr = (self.cycle + 1) % cfg.periodic_cycles == 0 and self.interventions < cfg.periodic_max
+        decision = None
+        if wants_srr and self.reframer is not None:
+            decision = self._reframe(ctx, result, rollout, keep, attention, recent)
+        self.cycle += 1
+        out = {"S": float(result.score) if np.isfinite(result.score) else float("nan"),
+               "trigger": float(result.trigger), "version": float(self.program.version)}
+        if decision is not None:
+            out["accepted"] = float(decision.accepted)
+        return out
+
+    def _reframe(self, ctx: CycleContext, result: MCMResult, rollout: Any, keep: np.ndarray,
+                 attention: dict[str, float], recent: float) -> SRRDecision:
+        assert self.reframer is not None
+        guided = self.config.mode == "full"
+        band = None
+        if self.band_feature is not None:
+            values = self.card.feature_values(rollout.obs)[self.band_feature]
+            center, half = stagnation_band(values)
+            band = {"feature": self.band_feature, "center": center, "halfwidth": half}
+        ev = result.evidence()
+        evidence = Evidence(
+            step=ctx.step, d=ev["d"], d_raw=ev["d_raw"], score=ev["score"], threshold=ev["threshold"],
+            gradient=ev["gradient"], contributors=ev["contributors"], recent_return=recent,
+            baseline_return=float(result.baseline), stagnation_band=band, attention=attention, guided=guided,
+        )
+        folder = ctx.run.interventions / f"{self.interventions:03d}-step{ctx.step}"
+        self.interventions += 1
+
+        def proxy(program: FactorProgram, states: np.ndarray) -> np.ndarray:
+            source = ProgramFactorSource(program, self.card)
+            return self.hars.proxy_potential(source, states).cpu().numpy()
+
+        # The sandbox runs on a spread of real states from the replay buffer (a fixed-seed sample).
+        rows = np.random.default_rng(ctx.step).integers(0, ctx.buffer.size, size=min(512, ctx.buffer.size))
+        sandbox_obs = ctx.buffer.obs[rows].numpy().astype(np.float64)
+        sandbox_actions = ctx.buffer.action[rows].numpy().astype(np.float64)
+        decision = self.reframer.reframe(folder, self.program, evidence, rollout.obs[keep], rollout.mc_values[keep],
+                                         sandbox_obs, sandbox_actions, proxy, seed=ctx.step)
+        if decision.accepted:
+            old = self.program
+            self.program = decision.program
+            save_program_version(ctx.run.programs, old, self.program)
+            self.hars.set_program(ProgramFactorSource(self.program, self.card))
+            self.monitor.on_edit_accepted()
+            self.pending_observation = {"operators": decision.operators, "d_before": result.d.tolist(),
+                                        "due_cycle": self.cycle + self.config.mcm.k_cool}
+            log.info("step %d: SRR accepted program v%d (%s)", ctx.step, self.program.version, decision.reason)
+        elif decision.backoff:
+            self.monitor.on_backoff(self.config.srr.delta_q)
+            log.info("step %d: SRR abstained (%s)", ctx.step, decision.reason)
+        return decision
+
+    def _observe_pending(self, result: MCMResult) -> None:
+        """Finite-difference update of J_F once an accepted edit has had its cooldown to take effect."""
+        pending = self.pending_observation
+        if pending is None or self.cycle < pending["due_cycle"]:
+            return
+        self.surrogate.observe(pending["operators"], np.asarray(pending["d_before"]), result.d)
+        self.pending_observation = None
+
+    def _log(self, ctx: CycleContext, result: MCMResult) -> None:
+        if self._diagnostics is None:
+            self._diagnostics = CsvLog(ctx.run.path / "diagnostics.csv", [*row_fields(METRIC_NAMES), "version"])
+            self._diagnostics.rewind(ctx.step - 1)
+        self._diagnostics.append({**result.as_row(), "version": self.program.version})
+
+    # ------------------------------------------------------------------------------------- checkpoint
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "cycle": self.cycle,
+            "interventions": self.interventions,
+            "program": self.program.to_json(),
+            "monitor": self.monitor.state_dict(),
+            "surrogate": self.surrogate.state_dict(),
+            "prev_actor": self.prev_actor,
+            "pending": self.pending_observation,
+            "llm": backend_state_dict(self.backend) if self.backend is not None else {},
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.cycle = state["cycle"]
+        self.interventions = state["interventions"]
+        self.program = FactorProgram.from_json(state["program"])
+        self.monitor.load_state_dict(state["monitor"])
+        self.surrogate.load_state_dict(state["surrogate"])
+        self.prev_actor = state["prev_actor"]
+        self.pending_observation = state["pending"]
+        if self.backend is not None:
+            load_backend_state_dict(self.backend, state["llm"])
+
+
+def save_program_version(directory: Any, old: FactorProgram | None, new: FactorProgram) -> None:
+    """``programs/vNNN.json`` and its unified diff to the previous version."""
+    atomic_write_json(directory / f"v{new.version:03d}.json", new.to_json())
+    if old is not None:
+        atomic_write_text(directory / f"v{new.version:03d}.diff", code_diff(old, new))

@@ -1,0 +1,29 @@
+"""SRR hyperparameters (Table 1); imports nothing so that ``mira.config`` can embed it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class SRRConfig:
+    """Reward-editing strictness (Table 1)."""
+
+    max_candidates: int = 3
+    """M: candidate revisions asked for per intervention."""
+    lambda_comp: float = 0.05
+    """λ_comp: complexity penalty in J_SRR."""
+    min_auc: float = 0.5
+    """Accept only candidates whose proxy potential has ROC-AUC above this."""
+    max_p_value: float = 0.05
+    """... with a permutation p-value below this."""
+    permutations: int = 1000
+    """Permutations for the AUC and Spearman tests."""
+    label_quantiles: tuple[float, float] = (0.3, 0.7)
+    """States at or below the first value quantile are negatives, at or above the second positives."""
+    delta_q: float = 0.5
+    """Δq: how much a backoff raises the anomaly percentile (capped at 99)."""
+    operators: tuple[str, ...] = ("Scale", "Sat", "Gate", "Refactor", "Add", "Prune")
+    """Admissible edit operators offered to the LLM."""
+    sandbox_timeout_s: float = 15.0
+    """Wall-clock bound of one candidate's sandbox check."""
