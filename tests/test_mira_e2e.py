@@ -1,0 +1,48 @@
+"""End-to-end MIRA runs (small budgets): the outer loop never stops training, and leaves a full trail."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from mira.cli import main
+from mira.runio.csvlog import read_csv
+
+FAST_MIRA = ["--set", "mira.mcm.delta_t=400", "--set", "mira.holdout_episodes=1", "--set", "mira.periodic_cycles=1",
+             "--set", "mira.mcm.k_warm=1", "--set", "mira.mcm.buffer_min=1", "--set", "mira.mcm.min_scores=1"]
+
+
+def _train(out: Path, fast: list[str], method: str, *extra: str, steps: int = 800) -> int:
+    return main(["train", "--task", "halfcheetah", "--method", method, "--steps", str(steps), "--seed", "0",
+                 "--out", str(out), *fast, *FAST_MIRA, *extra])
+
+
+@pytest.mark.slow
+def test_mira_writes_diagnostics_programs_and_llm_audit(tmp_path: Path, fast_train_args: list[str]) -> None:
+    run = tmp_path / "run"
+    assert _train(run, fast_train_args, "mira") == 0
+    rows = read_csv(run / "diagnostics.csv")
+    assert [r["step"] for r in rows] == ["400", "800"]
+    assert {"raw_pvc", "d_rpe", "score", "threshold", "trigger", "cooldown_left", "buffer_fill"} <= set(rows[0])
+    assert (run / "programs" / "v000.json").is_file()
+    exchanges = (run / "llm" / "exchanges.jsonl").read_text()
+    assert "rule-based" in exchanges  # the offline engineer says what it is
+
+
+@pytest.mark.slow
+def test_endpoint_down_records_failed_interventions_and_training_goes_on(tmp_path: Path,
+                                                                         fast_train_args: list[str]) -> None:
+    run = tmp_path / "run"
+    program = Path(__file__).parents[1] / "src" / "mira" / "examples" / "halfcheetah_f0.json"
+    code = _train(run, fast_train_args, "mira-no-mcm", "--program", str(program),
+                  "--llm", "openai:deepseek-reasoner", "--base-url", "http://127.0.0.1:9/v1",
+                  "--set", "llm.max_retries=0", "--set", "llm.timeout_s=2")
+    assert code == 0
+    decisions = sorted((run / "interventions").glob("*/decision.json"))
+    assert len(decisions) == 2
+    for path in decisions:
+        decision = json.loads(path.read_text())
+        assert decision["failed"] and not decision["accepted"] and "LLM call failed" in decision["reason"]
+    assert read_csv(run / "eval.csv")[-1]["step"] == "800"
