@@ -116,6 +116,9 @@ def build_parser() -> argparse.ArgumentParser:
     fc.add_argument("program", help="factor-program JSON file")
     fc.add_argument("--task", required=True)
     fc.add_argument("--no-sandbox", action="store_true", help="static checks only")
+
+    e = sub.add_parser("explain", help="the story of a run: versions, interventions, evidence, what changed")
+    e.add_argument("run_dir")
     return parser
 
 
@@ -168,7 +171,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         torch.set_num_threads(cfg.threads)
     parts = build_method(cfg, card, path)
     if not args.resume:
-        run.write_config({"config": to_dict(cfg), "task_card": card_to_dict(card), "method": parts.reward.describe(),
+        run.write_config({"config": to_dict(cfg), "task_card": card_to_dict(card),
+                          "method": {"description": parts.description, **parts.reward.describe()},
                           "environment": _environment_facts()})
     setup = TrainSetup(
         card=card, algo=cfg.algo, steps=cfg.steps, seed=cfg.seed, learning_starts=cfg.learning_starts,
@@ -223,12 +227,19 @@ def cmd_factors(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_explain(args: argparse.Namespace) -> int:
+    from mira.explain import explain
+
+    print(explain(args.run_dir))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if getattr(args, "quiet", False) else logging.WARNING,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    handlers = {"train": cmd_train, "factors": cmd_factors}
+    handlers = {"train": cmd_train, "factors": cmd_factors, "explain": cmd_explain}
     try:
         return handlers[args.command](args)
     except UsageError as exc:

@@ -1,0 +1,107 @@
+"""``mira explain RUN_DIR``: the story of a run in plain words, from its directory alone.
+
+Which program versions there were and when, why each intervention happened (the monitor's evidence),
+what SRR proposed and what each check said, what changed, and what the evaluation return did after.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from mira.errors import UsageError
+from mira.runio.csvlog import read_csv
+
+
+def _load(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def _mean_return(evals: list[dict[str, str]], lo: int, hi: int) -> float | None:
+    vals = [float(r["return_mean"]) for r in evals if lo < int(r["step"]) <= hi]
+    return sum(vals) / len(vals) if vals else None
+
+
+def _fmt(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.1f}"
+
+
+def explain(run_dir: str | Path) -> str:
+    run = Path(run_dir)
+    cfg_file = _load(run / "config.json")
+    if cfg_file is None:
+        raise UsageError(f"explain {run}: not a run directory (no readable config.json)")
+    cfg = cfg_file["config"]
+    status = _load(run / "status.json") or {}
+    evals = read_csv(run / "eval.csv")
+    lines = [
+        f"Run {run}: method {cfg['method']} on {cfg['task']} with {cfg['algo'].upper()}, seed {cfg['seed']}, "
+        f"{cfg['steps']} steps; status {status.get('status', 'unknown')} at step {status.get('step', '?')}.",
+        f"Method: {(cfg_file.get('method') or {}).get('description', cfg['method'])}",
+    ]
+    if evals:
+        last = evals[-1]
+        best = max(evals, key=lambda r: float(r["return_mean"]))
+        lines.append(f"Evaluation: {len(evals)} evaluations; last return {float(last['return_mean']):.1f} at step "
+                     f"{last['step']}; best {float(best['return_mean']):.1f} at step {best['step']}.")
+    programs = sorted((run / "programs").glob("v*.json"))
+    if programs:
+        v0 = _load(programs[0]) or {}
+        names = ", ".join(f"{f['name']} ({f['type']})" for f in v0.get("factors", []))
+        engineer = cfg.get("llm", {}).get("backend", "offline")
+        who = "the offline rule-based reward engineer (not an LLM)" if engineer == "offline" else engineer
+        lines.append(f"Program v0 was written by {who}: {names}.")
+    diag = read_csv(run / "diagnostics.csv")
+    if diag:
+        triggers = [r for r in diag if r.get("trigger") == "1"]
+        lines.append(f"Monitor: {len(diag)} cycles, {len(triggers)} triggers"
+                     + (f" (at steps {', '.join(r['step'] for r in triggers)})." if triggers else "."))
+    interventions = sorted((run / "interventions").glob("*/decision.json"))
+    if not interventions and (run / "interventions").exists():
+        lines.append("No intervention was made.")
+    for path in interventions:
+        folder = path.parent
+        decision = _load(path) or {}
+        evidence = _load(folder / "evidence.json") or {}
+        step = int(evidence.get("step", 0))
+        lines.append("")
+        lines.append(f"Intervention {folder.name} at step {step}:")
+        if evidence.get("guided", True) and evidence.get("contributors"):
+            why = "; ".join(f"{c['reading']} ({str(c['metric']).upper()} = {c['value']:.2f})"
+                            for c in evidence["contributors"])
+            score = evidence.get("score")
+            lines.append(f"  why: the monitor flagged a persistent anomaly (S = {_fmt(score)}): {why}.")
+        else:
+            lines.append("  why: periodic review without diagnostic evidence (no-MCM ablation).")
+        hyps = evidence.get("hypotheses") or []
+        if hyps:
+            lines.append("  hypotheses: " + ", ".join(f"{h['operator']} ({h['because']})" for h in hyps[:3]))
+        candidates = _load(folder / "candidates.json") or []
+        for c in candidates:
+            verdicts = c.get("verdicts", {})
+            eff = verdicts.get("efficacy")
+            ops = "+".join(c.get("operators", [])) or "?"
+            if eff:
+                figures = f"AUC {eff['auc']:.3f} (p {eff['auc_p']:.3g}), Spearman {eff['spearman']:.2f}, J_SRR {eff['j_srr']:.3f}"
+            else:
+                figures = "not measured"
+            verdict = verdicts.get("rejected") or "passed every check"
+            lines.append(f"  candidate {c['index']} [{ops}]: {figures}; {verdict}")
+        if decision.get("accepted"):
+            lines.append(f"  decision: accepted -> program v{decision.get('version')} ({decision.get('reason')}).")
+            diff = folder / "accepted.diff"
+            if diff.is_file():
+                changed = [ln for ln in diff.read_text().splitlines()
+                           if ln.startswith(("+", "-")) and not ln.startswith(("+++", "---"))]
+                lines += ["    " + ln for ln in changed[:12]]
+            before = _mean_return(evals, step - 3 * int(cfg.get("eval_every", 5000)), step)
+            after = _mean_return(evals, step, step + 3 * int(cfg.get("eval_every", 5000)))
+            lines.append(f"  return: {_fmt(before)} in the evaluations before, {_fmt(after)} in those after.")
+        else:
+            kind = "failed" if decision.get("failed") else "abstained (backoff)"
+            lines.append(f"  decision: {kind}: {decision.get('reason')}")
+    return "\n".join(lines)
