@@ -32,6 +32,7 @@ from mira.mcm.monitor import MetacognitiveMonitor
 from mira.mcm.records import METRIC_NAMES, CycleSnapshot, MCMResult, row_fields
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.runio.csvlog import CsvLog
+from mira.runio.failpoints import failpoint
 from mira.shaping.factors import ProgramFactorSource
 from mira.shaping.source import HarsReward
 from mira.srr.hypotheses import EditSurrogate
@@ -141,13 +142,16 @@ class MiraOuterLoop:
         rows = np.random.default_rng(ctx.step).integers(0, ctx.buffer.size, size=min(512, ctx.buffer.size))
         sandbox_obs = ctx.buffer.obs[rows].numpy().astype(np.float64)
         sandbox_actions = ctx.buffer.action[rows].numpy().astype(np.float64)
+        failpoint("srr.before_call")
         decision = self.reframer.reframe(folder, self.program, evidence, rollout.obs[keep], rollout.mc_values[keep],
                                          sandbox_obs, sandbox_actions, proxy, seed=ctx.step)
         if decision.accepted:
             old = self.program
             self.program = decision.program
             save_program_version(ctx.run.programs, old, self.program)
+            failpoint("program.saved")
             self.hars.set_program(ProgramFactorSource(self.program, self.card))
+            failpoint("program.applied")
             self.monitor.on_edit_accepted()
             self.pending_observation = {"operators": decision.operators, "d_before": result.d.tolist(),
                                         "due_cycle": self.cycle + self.config.mcm.k_cool}

@@ -20,6 +20,7 @@ import torch
 
 from mira.errors import CheckpointError
 from mira.runio.atomic import atomic_write_bytes, atomic_write_json
+from mira.runio.failpoints import failpoint
 
 log = logging.getLogger(__name__)
 
@@ -42,11 +43,14 @@ def save_checkpoint(directory: str | os.PathLike[str], step: int, state: dict[st
     torch.save(state, buf)
     data = buf.getvalue()
     payload = _payload_path(root, step)
+    failpoint("checkpoint.before_payload")
     atomic_write_bytes(payload, data)
+    failpoint("checkpoint.after_payload")
     atomic_write_json(
         _manifest_path(root, step),
         {"step": step, "sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data), "file": payload.name},
     )
+    failpoint("checkpoint.after_manifest")
     for old in list_checkpoints(root)[:-keep] if keep > 0 else []:
         for path in (_payload_path(root, old), _manifest_path(root, old)):
             path.unlink(missing_ok=True)

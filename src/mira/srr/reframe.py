@@ -24,6 +24,7 @@ from mira.factors.program import FactorProgram, ProgramParseError, code_diff
 from mira.factors.sandbox import SandboxLimits, sandbox_check
 from mira.llm.base import LLMBackend, LLMError
 from mira.runio.atomic import atomic_write_json, atomic_write_text
+from mira.runio.failpoints import failpoint
 from mira.srr.candidates import Candidate, parse_candidates
 from mira.srr.config import SRRConfig
 from mira.srr.efficacy import proxy_efficacy
@@ -99,6 +100,7 @@ class Reframer:
             return self._finish(folder, SRRDecision(False, program, f"LLM call failed: {type(exc).__name__}: {exc}",
                                                     backoff=True, failed=True))
         atomic_write_text(folder / "response.txt", reply.content)
+        failpoint("srr.after_reply")
         try:
             candidates = parse_candidates(reply.content, program, cfg.max_candidates)
         except ProgramParseError as exc:
