@@ -117,6 +117,11 @@ def build_parser() -> argparse.ArgumentParser:
     fc.add_argument("--task", required=True)
     fc.add_argument("--no-sandbox", action="store_true", help="static checks only")
 
+    from mira.experiments.cli import add_report_parser, add_sweep_parser
+
+    add_sweep_parser(sub)
+    add_report_parser(sub)
+
     e = sub.add_parser("explain", help="the story of a run: versions, interventions, evidence, what changed")
     e.add_argument("run_dir")
     return parser
@@ -241,7 +246,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     handlers = {"train": cmd_train, "factors": cmd_factors, "explain": cmd_explain}
     try:
-        return handlers[args.command](args)
+        handler = handlers.get(args.command) or args.func
+        result: int = handler(args)
+        return result
     except UsageError as exc:
         print(f"mira {args.command}: error: {exc}", file=sys.stderr)
         return 2

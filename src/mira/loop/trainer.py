@@ -107,10 +107,10 @@ class Trainer:
         resumed = self._restore()
         evals = self.run_dir.eval_log()
         train_log = self.run_dir.csv_log("train.csv", self._train_fields())
-        if resumed:
-            # Rows written after the checkpoint will be written again, identically: drop them first.
-            for csv_path in sorted(self.run_dir.path.glob("*.csv")):
-                rewind_csv(csv_path, self.step)
+        # Rows written after the checkpoint (or, resuming a run killed before its first checkpoint,
+        # any row at all) will be written again, identically: drop them first.
+        for csv_path in sorted(self.run_dir.path.glob("*.csv")):
+            rewind_csv(csv_path, self.step)
         tb = self.run_dir.tensorboard(purge_step=self.step if resumed else None)
         self.run_dir.set_status("running", self.step)
         if self._obs is None:

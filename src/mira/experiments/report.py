@@ -1,0 +1,515 @@
+"""Tables and figures of a set of runs, in the layout of the paper's Tables 2/3 and Figures 3–5.
+
+``write_report(paths, out_dir)`` takes run directories and/or directories containing runs (a sweep's
+``OUT``), and writes into ``out_dir``:
+
+- ``report.md`` — every table and figure with the metric definitions and notes;
+- ``table_<algo>.md`` / ``table_<algo>.csv`` — method rows; per task the asymptotic performance and
+  the sample efficiency in units of 10^5 environment steps (mean ± std over seeds, "—" when no seed
+  reached 50% of the Dense oracle; "(k/n)" when only k of n seeds did);
+- ``metrics.csv`` — one row per (algo, task, method) with every number, IQM and its 95% CI;
+- ``aggregate.csv`` — per (algo, method), the IQM of oracle-normalised asymptotic performance over
+  all tasks and seeds with a stratified-bootstrap 95% CI (tasks are the strata);
+- ``runs.csv`` — one row per run;
+- ``curves_<algo>.png`` — Figures 3/4: mean ± 1 std over seeds, one panel per task, one line per
+  method; ``ablation_<algo>.png`` — Figure 5 (MIRA vs. w/o MCM vs. w/o SRR) when they are present;
+- ``runs/<task>_<algo>_<method>_seed<k>.png`` — per run, MCM's anomaly score with threshold,
+  triggers and accepted/rejected SRR edits, and each factor's attention weight, when the run has
+  ``diagnostics.csv`` or ``attn_*`` columns in ``train.csv``.
+
+Only complete runs (status finished at their step budget) enter tables and curves unless
+``include_incomplete`` is set; the others are listed in the notes. Metric definitions are in
+:mod:`mira.experiments.metrics`. Wall-time columns (``wall_s*``) are the only columns that differ
+between two sweeps of the same grid.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import math
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mira.errors import UsageError
+from mira.experiments import metrics as M
+from mira.experiments.grid import order_methods, task_label
+from mira.experiments.plots import Curve, plot_learning_curves, plot_run_diagnostics
+from mira.runio.atomic import atomic_write_text
+from mira.runio.csvlog import read_csv
+
+METHOD_TITLES = {
+    "dense": "Dense R (oracle)", "sparse": "Sparse R", "mira": "MIRA", "mira-no-mcm": "MIRA w/o MCM",
+    "mira-no-srr": "MIRA w/o SRR", "lare": "LaRe", "rd": "RD", "ircr": "IRCR", "vib": "VIB",
+}
+TASK_ORDER = ("halfcheetah", "humanoidstandup", "humanoid")
+ALGO_ORDER = ("ddpg", "sac")
+ALGO_TABLE = {"ddpg": "Table 2", "sac": "Table 3"}
+ABLATION = ("mira", "mira-no-mcm", "mira-no-srr")
+ORACLE = "dense"
+SE_UNIT = 1e5
+_SKIP_DIRS = {"tb", "checkpoints", "programs", "interventions", "llm", "_sweep", "__pycache__"}
+
+
+@dataclass
+class RunRecord:
+    """What a report needs from one run directory."""
+
+    path: Path
+    task: str
+    task_title: str
+    method: str
+    algo: str
+    seed: int
+    steps: int
+    status: str
+    final_step: int
+    eval_steps: list[int]
+    eval_returns: list[float]
+    wall_s: float | None
+
+    @property
+    def run_id(self) -> str:
+        return f"{self.task}/{self.algo}/{self.method}/seed{self.seed}"
+
+    @property
+    def complete(self) -> bool:
+        return self.status == "finished" and self.final_step == self.steps and bool(self.eval_steps)
+
+
+@dataclass
+class CellStats:
+    """One (algo, task, method) cell of a table, over seeds."""
+
+    algo: str
+    task: str
+    method: str
+    seeds: list[int]
+    asymptotic: list[float]
+    asym_mean: float
+    asym_std: float
+    iqm: float
+    iqm_low: float
+    iqm_high: float
+    oracle: float | None
+    threshold: float | None
+    sample_eff: list[int | None]
+    se_mean: float | None
+    se_std: float | None
+    reached: int
+    wall_mean: float | None
+
+
+@dataclass
+class ReportResult:
+    out_dir: Path
+    files: list[Path] = field(default_factory=list)
+    cells: list[CellStats] = field(default_factory=list)
+    runs: list[RunRecord] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------------------- loading
+
+
+def discover_runs(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
+    """Run directories (those holding ``config.json``) at or below each path, sorted, deduplicated."""
+    found: list[Path] = []
+    for p in paths:
+        root = Path(p)
+        if not root.exists():
+            raise UsageError(f"{root} does not exist")
+        if (root / "config.json").is_file():
+            found.append(root.resolve())
+            continue
+        if not root.is_dir():
+            raise UsageError(f"{root} is neither a run directory nor a directory of runs")
+        for dirpath, dirnames, filenames in os.walk(root):
+            if "config.json" in filenames:
+                found.append(Path(dirpath).resolve())
+                dirnames[:] = []
+            else:
+                dirnames[:] = sorted(d for d in dirnames if d not in _SKIP_DIRS)
+    return sorted(dict.fromkeys(found))
+
+
+def _task_title(cfg_task: str, card: Any) -> tuple[str, str]:
+    """(key, title): a built-in task is keyed by its name and titled by its environment
+    (HalfCheetah); a task-card file by its file stem, which is also its title."""
+    name = task_label(str(cfg_task))
+    if name != str(cfg_task):
+        return name, name
+    if isinstance(card, dict) and isinstance(card.get("env_id"), str):
+        return name, card["env_id"].split("-v")[0]
+    return name, name
+
+
+def load_run(path: Path) -> RunRecord:
+    """Read a run directory; raises ``UsageError`` if its config.json is unusable."""
+    try:
+        saved = json.loads((path / "config.json").read_text(encoding="utf-8"))
+        cfg = saved["config"]
+        task, title = _task_title(cfg["task"], saved.get("task_card"))
+        method, algo, seed, steps = str(cfg["method"]), str(cfg["algo"]), int(cfg["seed"]), int(cfg["steps"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UsageError(f"{path}/config.json is unusable ({exc})") from None
+    try:
+        status = json.loads((path / "status.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        status = {}
+    rows = read_csv(path / "eval.csv")
+    steps_l: list[int] = []
+    rets: list[float] = []
+    wall: float | None = None
+    for r in rows:
+        try:
+            s, ret = int(float(r["step"])), float(r["return_mean"])
+        except (KeyError, ValueError):
+            continue
+        steps_l.append(s)
+        rets.append(ret)
+        with contextlib.suppress(ValueError):
+            wall = float(r.get("wall_s") or "nan")
+    final_step = int(status.get("step") or (steps_l[-1] if steps_l else 0)) if isinstance(status, dict) else 0
+    return RunRecord(path, task, title, method, algo, seed, steps, str(status.get("status", "unknown")),
+                     final_step, steps_l, rets, wall if wall is not None and math.isfinite(wall) else None)
+
+
+# ------------------------------------------------------------------------------------- computing
+
+
+def _ordered(values: Iterable[str], preferred: Sequence[str]) -> list[str]:
+    names = list(dict.fromkeys(values))
+    return [v for v in preferred if v in names] + sorted(v for v in names if v not in preferred)
+
+
+def compute_cells(runs: Sequence[RunRecord], *, reps: int = 20_000,
+                  seed: int = 0) -> tuple[list[CellStats], list[str]]:
+    """Per (algo, task, method): metrics over seeds, with the Dense oracle of the same task and algo."""
+    notes: list[str] = []
+    groups: dict[tuple[str, str, str], list[RunRecord]] = {}
+    for r in runs:
+        groups.setdefault((r.algo, r.task, r.method), []).append(r)
+    asym: dict[tuple[str, str, str], list[float]] = {}
+    for key, rs in groups.items():
+        rs.sort(key=lambda r: r.seed)
+        budgets = sorted({r.steps for r in rs})
+        if len(budgets) > 1:
+            notes.append(f"{'/'.join(key)}: runs with different step budgets {budgets} are pooled")
+        asym[key] = [M.asymptotic_performance(r.eval_steps, r.eval_returns, r.steps) for r in rs]
+    cells: list[CellStats] = []
+    for key, rs in groups.items():
+        algo, task, method = key
+        values = asym[key]
+        oracle_key = (algo, task, ORACLE)
+        oracle = M.mean_std(asym[oracle_key])[0] if oracle_key in asym else None
+        threshold = M.oracle_threshold(oracle) if oracle is not None else None
+        se = [M.sample_efficiency(r.eval_steps, r.eval_returns, threshold) if threshold is not None else None
+              for r in rs]
+        se_mean, se_std, reached, _ = M.sample_efficiency_over_seeds(se)
+        mean, std = M.mean_std(values)
+        point, low, high = M.stratified_bootstrap_ci([values], reps=reps, seed=seed)
+        walls = [r.wall_s for r in rs if r.wall_s is not None]
+        cells.append(CellStats(algo, task, method, [r.seed for r in rs], values, mean, std, point, low, high,
+                               oracle, threshold, se, se_mean, se_std, reached,
+                               sum(walls) / len(walls) if walls else None))
+    for algo, task in sorted({(a, t) for a, t, _ in groups}):
+        if (algo, task, ORACLE) not in groups:
+            notes.append(f"{algo.upper()} {task}: no Dense oracle runs, so sample efficiency is n/a")
+    return cells, notes
+
+
+def aggregate(cells: Sequence[CellStats], *, reps: int = 20_000,
+              seed: int = 0) -> tuple[list[dict[str, Any]], list[str]]:
+    """Per (algo, method): IQM of oracle-normalised asymptotic performance (score / A_oracle) over all
+    tasks and seeds, with a stratified-bootstrap CI (strata = tasks). Tasks whose oracle is missing
+    or not positive are left out (a ratio to it would not be a score)."""
+    rows: list[dict[str, Any]] = []
+    notes: list[str] = []
+    by_algo: dict[str, list[CellStats]] = {}
+    for c in cells:
+        by_algo.setdefault(c.algo, []).append(c)
+    for algo in _ordered(by_algo, ALGO_ORDER):
+        skipped = sorted({c.task for c in by_algo[algo] if c.oracle is None or c.oracle <= 0})
+        if skipped:
+            notes.append(f"{algo.upper()}: tasks left out of the normalised aggregate (oracle missing or "
+                         f"≤ 0): {', '.join(skipped)}")
+        methods = order_methods(c.method for c in by_algo[algo])
+        for method in methods:
+            strata = {c.task: [v / c.oracle for v in c.asymptotic] for c in by_algo[algo]
+                      if c.method == method and c.oracle is not None and c.oracle > 0}
+            if not strata:
+                continue
+            point, low, high = M.stratified_bootstrap_ci(strata, reps=reps, seed=seed)
+            rows.append({"algo": algo, "method": method, "tasks": ";".join(sorted(strata)),
+                         "runs": sum(len(v) for v in strata.values()), "normalized_iqm": point,
+                         "ci_low": low, "ci_high": high})
+    return rows, notes
+
+
+# ------------------------------------------------------------------------------------ formatting
+
+
+def _return_decimals(ref: float) -> int:
+    ax = abs(ref)
+    return 0 if ax >= 1000 else 1 if ax >= 10 else 2
+
+
+def fmt_return(x: float | None, ref: float | None = None) -> str:
+    """A return for a table: 10,733 / 612.4 / −1.32, with the precision of ``ref`` (default ``x``)."""
+    if x is None or not math.isfinite(x):
+        return "—"
+    decimals = _return_decimals(x if ref is None or not math.isfinite(ref) else ref)
+    return f"{x:,.{decimals}f}".replace("-", "−")
+
+
+def fmt_steps_1e5(x: float | None, ref: float | None = None) -> str:
+    """Steps in units of 10^5 with two decimals, or two significant digits below 0.1 (of ``ref``)."""
+    if x is None or not math.isfinite(x):
+        return "—"
+    r = abs((x if ref is None else ref) / SE_UNIT)
+    decimals = 2 if r >= 0.1 or r == 0 else max(2, 1 - math.floor(math.log10(r)))
+    return f"{x / SE_UNIT:.{decimals}f}"
+
+
+def _asym_cell(c: CellStats) -> str:
+    return f"{fmt_return(c.asym_mean)} ± {fmt_return(c.asym_std, c.asym_mean)}"
+
+
+def _se_cell(c: CellStats) -> str:
+    if c.threshold is None:
+        return "n/a"
+    if c.se_mean is None:
+        return "—"
+    text = f"{fmt_steps_1e5(c.se_mean)} ± {fmt_steps_1e5(c.se_std, c.se_mean)}"
+    n = len(c.sample_eff)
+    return text if c.reached == n else f"{text} ({c.reached}/{n})"
+
+
+def _csv_text(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    for row in rows:
+        w.writerow(["" if v is None else (repr(float(v)) if isinstance(v, float) else v) for v in row])
+    return buf.getvalue()
+
+
+def _md_table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------------------- writing
+
+
+def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.PathLike[str], *,
+                 include_incomplete: bool = False, bootstrap_reps: int = 20_000, seed: int = 0,
+                 plots: bool = True) -> ReportResult:
+    """Write the tables, CSVs and figures for every run found at or below ``paths`` into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result = ReportResult(out)
+    run_dirs = discover_runs(paths)
+    if not run_dirs:
+        raise UsageError("no run directories (with config.json) found under "
+                         + ", ".join(str(p) for p in paths))
+    records = [load_run(p) for p in run_dirs]
+    result.runs = records
+    seen: dict[tuple[str, str, str, int], Path] = {}
+    used: list[RunRecord] = []
+    for r in records:
+        key = (r.algo, r.task, r.method, r.seed)
+        if key in seen:
+            result.notes.append(f"{r.run_id}: duplicate of {seen[key]}; {r.path} is left out")
+            continue
+        if not r.eval_steps:
+            result.notes.append(f"{r.run_id}: no evaluation yet ({r.status}); left out")
+            continue
+        if not r.complete and not include_incomplete:
+            result.notes.append(f"{r.run_id}: {r.status} at step {r.final_step} of {r.steps}; left out "
+                                "(incomplete)")
+            continue
+        seen[key] = r.path
+        used.append(r)
+    cells, notes = compute_cells(used, reps=bootstrap_reps, seed=seed)
+    result.cells = cells
+    result.notes += notes
+    agg_rows, agg_notes = aggregate(cells, reps=bootstrap_reps, seed=seed)
+    result.notes += agg_notes
+
+    def write(name: str, text: str) -> Path:
+        path = out / name
+        atomic_write_text(path, text)
+        result.files.append(path)
+        return path
+
+    write("runs.csv", _csv_text(
+        ["algo", "task", "method", "seed", "steps", "status", "final_step", "used", "asymptotic",
+         "sample_eff_steps", "wall_s"],
+        _run_rows(records, used, cells)))
+    write("metrics.csv", _csv_text(
+        ["algo", "task", "method", "seeds", "asymptotic_mean", "asymptotic_std", "asymptotic_iqm",
+         "asymptotic_iqm_ci_low", "asymptotic_iqm_ci_high", "oracle_asymptotic", "threshold",
+         "sample_eff_steps_mean", "sample_eff_steps_std", "reached", "wall_s_mean"],
+        ([c.algo, c.task, c.method, len(c.seeds), c.asym_mean, c.asym_std, c.iqm, c.iqm_low, c.iqm_high,
+          c.oracle, c.threshold, c.se_mean, c.se_std, c.reached, c.wall_mean] for c in _sorted_cells(cells))))
+    agg_cols = ["algo", "method", "tasks", "runs", "normalized_iqm", "ci_low", "ci_high"]
+    write("aggregate.csv", _csv_text(agg_cols, ([r[k] for k in agg_cols] for r in agg_rows)))
+
+    titles = {r.task: r.task_title for r in used}
+    md: list[str] = ["# MIRA experiment report\n",
+                     f"{len(used)} runs in the tables ({len(records)} found). Asymptotic performance: mean "
+                     "evaluation return over the final 10% of training (eval rows with step > 0.9·N, at "
+                     "least the last). Sample efficiency: first evaluation step whose return reaches 50% "
+                     "of the Dense oracle's asymptotic performance for the same task and algo, in units of "
+                     "10^5 environment steps (for a negative oracle A the bar is A − 0.5·|A|). Cells are "
+                     "mean ± std over seeds; sample efficiency averages the seeds that reached the bar, "
+                     "(k/n) when only k of n did; — when none did. Returns are the extrinsic episodic "
+                     "return of the deterministic policy; shaping never enters them.\n"]
+    for algo in _ordered({c.algo for c in cells}, ALGO_ORDER):
+        acells = [c for c in cells if c.algo == algo]
+        tasks = _ordered({c.task for c in acells}, TASK_ORDER)
+        methods = order_methods(c.method for c in acells)
+        by = {(c.task, c.method): c for c in acells}
+        header = ["Method"]
+        for t in tasks:
+            header += [f"{titles.get(t, t)}: Asymptotic Perf.", f"{titles.get(t, t)}: Sample Eff. (×10^5)"]
+        rows_md = []
+        rows_csv = []
+        for m in methods:
+            row = [METHOD_TITLES.get(m, m)]
+            crow: list[Any] = [m]
+            for t in tasks:
+                c = by.get((t, m))
+                row += [_asym_cell(c), _se_cell(c)] if c else ["", ""]
+                crow += ([c.asym_mean, c.asym_std, None if c.se_mean is None else c.se_mean / SE_UNIT,
+                          None if c.se_std is None else c.se_std / SE_UNIT, c.reached, len(c.seeds)]
+                         if c else [None] * 6)
+            rows_md.append(row)
+            rows_csv.append(crow)
+        n_seeds = sorted({len(c.seeds) for c in acells})
+        seeds_text = f"{n_seeds[0]} seeds" if len(n_seeds) == 1 else f"{n_seeds[0]}–{n_seeds[-1]} seeds"
+        caption = (f"{algo.upper()} — layout of the paper's {ALGO_TABLE.get(algo, 'Table 2')}; "
+                   f"mean ± std over {seeds_text}.")
+        table = _md_table(header, rows_md)
+        write(f"table_{algo}.md", f"{caption}\n\n{table}")
+        csv_header = ["method"]
+        for t in tasks:
+            csv_header += [f"{t}:asymptotic_mean", f"{t}:asymptotic_std", f"{t}:sample_eff_1e5_mean",
+                           f"{t}:sample_eff_1e5_std", f"{t}:reached", f"{t}:seeds"]
+        write(f"table_{algo}.csv", _csv_text(csv_header, rows_csv))
+        md += [f"## {algo.upper()} ({ALGO_TABLE.get(algo, 'Table 2')} layout)\n", caption + "\n", table]
+        iqm_rows = []
+        for m in methods:
+            row = [METHOD_TITLES.get(m, m)]
+            for t in tasks:
+                c = by.get((t, m))
+                row.append(f"{fmt_return(c.iqm)} [{fmt_return(c.iqm_low, c.iqm)}, "
+                           f"{fmt_return(c.iqm_high, c.iqm)}]" if c else "")
+            iqm_rows.append(row)
+        md += ["IQM of asymptotic performance over seeds [95% bootstrap CI]:\n",
+               _md_table(["Method", *(titles.get(t, t) for t in tasks)], iqm_rows)]
+        arows = [r for r in agg_rows if r["algo"] == algo]
+        if arows:
+            md += ["Oracle-normalised asymptotic performance, IQM over all tasks and seeds "
+                   "[95% stratified-bootstrap CI]:\n",
+                   _md_table(["Method", "IQM", "95% CI", "runs"],
+                             [[METHOD_TITLES.get(r["method"], r["method"]), f"{r['normalized_iqm']:.3f}",
+                               f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}]", str(r["runs"])] for r in arows])]
+        if plots:
+            panels = {t: {m: [Curve(r.eval_steps, r.eval_returns) for r in used
+                              if (r.algo, r.task, r.method) == (algo, t, m)] for m in methods} for t in tasks}
+            fig = out / f"curves_{algo}.png"
+            plot_learning_curves(panels, fig,
+                                 title=f"{algo.upper()}: evaluation return, mean ± 1 std over seeds",
+                                 panel_titles=titles, method_titles=METHOD_TITLES, methods=methods)
+            result.files.append(fig)
+            md.append(f"![{algo.upper()} learning curves]({fig.name})\n")
+            abl_tasks = [t for t in tasks if "mira" in panels[t] and panels[t]["mira"]
+                         and any(panels[t].get(m) for m in ABLATION[1:])]
+            if abl_tasks:
+                fig = out / f"ablation_{algo}.png"
+                plot_learning_curves({t: {m: panels[t].get(m, []) for m in ABLATION} for t in abl_tasks}, fig,
+                                     title=f"Ablation ({algo.upper()}): MIRA vs. w/o MCM vs. w/o SRR, "
+                                           "mean ± 1 std", panel_titles=titles, method_titles=METHOD_TITLES,
+                                     methods=ABLATION)
+                result.files.append(fig)
+                md += [f"### Ablation ({algo.upper()}, Figure 5 layout)\n", f"![ablation]({fig.name})\n"]
+    if plots:
+        diag = _run_diagnostic_plots(used, out, result)
+        if diag:
+            md += ["## MCM diagnostics and factor attention per run\n"]
+            md += [f"- {rid}: ![{rid}]({p.relative_to(out)})" for rid, p in diag]
+            md.append("")
+    if result.notes:
+        md += ["## Notes\n"] + [f"- {n}" for n in result.notes] + [""]
+    write("report.md", "\n".join(md) + "\n")
+    return result
+
+
+def _sorted_cells(cells: Sequence[CellStats]) -> list[CellStats]:
+    algos = _ordered({c.algo for c in cells}, ALGO_ORDER)
+    tasks = _ordered({c.task for c in cells}, TASK_ORDER)
+    methods = order_methods(c.method for c in cells)
+    return sorted(cells, key=lambda c: (algos.index(c.algo), tasks.index(c.task), methods.index(c.method)))
+
+
+def _run_rows(records: Sequence[RunRecord], used: Sequence[RunRecord],
+              cells: Sequence[CellStats]) -> list[list[Any]]:
+    by = {(c.algo, c.task, c.method): c for c in cells}
+    used_ids = {id(r) for r in used}
+    rows = []
+    algos = _ordered({r.algo for r in records}, ALGO_ORDER)
+    tasks = _ordered({r.task for r in records}, TASK_ORDER)
+    methods = order_methods(r.method for r in records)
+    for r in sorted(records, key=lambda r: (algos.index(r.algo), tasks.index(r.task), methods.index(r.method),
+                                            r.seed, str(r.path))):
+        asym: float | None = None
+        se: int | None = None
+        c = by.get((r.algo, r.task, r.method))
+        if id(r) in used_ids and c is not None and r.seed in c.seeds:
+            i = c.seeds.index(r.seed)
+            asym, se = c.asymptotic[i], c.sample_eff[i]
+        rows.append([r.algo, r.task, r.method, r.seed, r.steps, r.status, r.final_step,
+                     int(id(r) in used_ids), asym, se, r.wall_s])
+    return rows
+
+
+def _run_diagnostic_plots(runs: Sequence[RunRecord], out: Path,
+                          result: ReportResult) -> list[tuple[str, Path]]:
+    made: list[tuple[str, Path]] = []
+    for r in runs:
+        diagnostics = read_csv(r.path / "diagnostics.csv")
+        train_rows = read_csv(r.path / "train.csv")
+        has_attn = bool(train_rows) and any(k.startswith("attn_") for k in train_rows[0])
+        if not diagnostics and not has_attn:
+            continue
+        decisions = []
+        for d in sorted((r.path / "interventions").glob("*/decision.json")):
+            try:
+                data = json.loads(d.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                continue
+            if isinstance(data, dict):
+                decisions.append(data)
+        factors: set[str] = set()
+        for prog in sorted((r.path / "programs").glob("v*.json")):
+            try:
+                data = json.loads(prog.read_text(encoding="utf-8"))
+                factors.update(str(f["name"]) for f in data.get("factors", []) if isinstance(f, dict))
+            except (OSError, ValueError, KeyError, TypeError, AttributeError):
+                continue
+        path = out / "runs" / f"{r.task}_{r.algo}_{r.method}_seed{r.seed}.png"
+        title = f"{r.task_title} · {r.algo.upper()} · {METHOD_TITLES.get(r.method, r.method)} · seed {r.seed}"
+        if plot_run_diagnostics(path, title=title, diagnostics=diagnostics, train_rows=train_rows,
+                                decisions=decisions, factors=sorted(factors) or None):
+            result.files.append(path)
+            made.append((r.run_id, path))
+    return made
