@@ -56,9 +56,7 @@ def log_one_minus_tanh_sq(u: ArrayLike) -> FloatArray:
     return 2.0 * (_LOG2 - a - np.log1p(np.exp(-2.0 * a)))
 
 
-def tanh_gaussian_entropy(
-    mean: ArrayLike, log_std: ArrayLike, n_samples: int, rng: np.random.Generator
-) -> FloatArray:
+def tanh_gaussian_entropy(mean: ArrayLike, log_std: ArrayLike, n_samples: int, rng: np.random.Generator) -> FloatArray:
     """Monte-Carlo estimate of the entropy of ``a = tanh(u)``, ``u ~ N(mean, diag(exp(log_std)^2))``.
 
     The squashed entropy has no closed form. By the change of variables ``p_a(a) = p_u(u) / |det J|``
@@ -189,8 +187,8 @@ def d_pvc(phi: ArrayLike, value: ArrayLike, eps: float = 1e-8) -> float:
 
 
 def _xlogy_ratio(p: FloatArray, m: FloatArray) -> float:
-    """``sum p log(p/m)`` with the convention ``0 log 0 = 0``."""
-    mask = p > 0.0
+    """``sum p log(p/m)`` with the convention ``0 log 0 = 0`` (``m = 0`` only by subnormal underflow)."""
+    mask = (p > 0.0) & (m > 0.0)
     return float(np.sum(p[mask] * np.log(p[mask] / m[mask])))
 
 

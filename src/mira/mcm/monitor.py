@@ -113,9 +113,7 @@ class MetacognitiveMonitor:
             return float(snap.entropy)
         if snap.squashed:
             rng = np.random.default_rng(self.config.entropy_seed)
-            h = metrics.tanh_gaussian_entropy(
-                snap.policy_mean, snap.policy_log_std, self.config.entropy_samples, rng
-            )
+            h = metrics.tanh_gaussian_entropy(snap.policy_mean, snap.policy_log_std, self.config.entropy_samples, rng)
         else:
             h = metrics.diag_gaussian_entropy(snap.policy_log_std)
         return float(np.mean(h))
@@ -126,8 +124,10 @@ class MetacognitiveMonitor:
         Components that need a previous cycle (PEG, FAP) or previous-policy statistics (TPD) are
         NaN when those are missing; the standardiser treats NaN as missing (``z = 0``).
         """
+        return self._raw_metrics(snap, self.snapshot_entropy(snap))
+
+    def _raw_metrics(self, snap: CycleSnapshot, h_now: float) -> FloatArray:
         c = self.config
-        h_now = self.snapshot_entropy(snap)
         if self.prev_entropy is None or self.prev_step is None:
             peg = math.nan
         else:
@@ -136,23 +136,18 @@ class MetacognitiveMonitor:
         if snap.prev_policy_mean is None or snap.prev_policy_log_std is None:
             tpd = math.nan
         else:
-            tpd = metrics.d_tpd(
-                snap.policy_mean, snap.policy_log_std, snap.prev_policy_mean, snap.prev_policy_log_std
-            )
+            tpd = metrics.d_tpd(snap.policy_mean, snap.policy_log_std, snap.prev_policy_mean, snap.prev_policy_log_std)
         pvc = metrics.d_pvc(snap.phi_eval, snap.value_eval, c.pvc_eps)
-        fap = (
-            math.nan
-            if self.prev_attention is None
-            else metrics.d_fap(self.prev_attention, snap.attention_mean)
-        )
+        fap = math.nan if self.prev_attention is None else metrics.d_fap(self.prev_attention, snap.attention_mean)
         rpe = metrics.d_rpe(snap.phi_s, snap.r_ext, snap.phi_next, c.gamma, snap.terminal, c.rpe_eps)
         return np.array([peg, tpd, pvc, fap, rpe], dtype=np.float64)
 
     def diagnose(self, snap: CycleSnapshot) -> MCMResult:
         """Run one cycle of Algorithm 1 on a trainer snapshot."""
-        raw = self.raw_metrics(snap)
+        h_now = self.snapshot_entropy(snap)
+        raw = self._raw_metrics(snap, h_now)
         self.prev_step = int(snap.step)
-        self.prev_entropy = self.snapshot_entropy(snap)
+        self.prev_entropy = h_now
         self.prev_attention = {str(k): float(v) for k, v in snap.attention_mean.items()}
         return self.diagnose_raw(
             raw,
@@ -219,9 +214,7 @@ class MetacognitiveMonitor:
             )
 
         # Lines 6-7: score, threshold, bandwidth.
-        bandwidth_used = (
-            self.model.bandwidth if self.model.bandwidth is not None else self.model.init_bandwidth()
-        )
+        bandwidth_used = self.model.bandwidth if self.model.bandwidth is not None else self.model.init_bandwidth()
         score = self.model.score(d)
         self.scores.append(score)
         hist = np.array([s for s in self.scores if math.isfinite(s)], dtype=np.float64)
@@ -229,7 +222,8 @@ class MetacognitiveMonitor:
         self.model.update_bandwidth()
 
         # Lines 8-10: performance-gated insertion.
-        if beats:
+        inserted = beats and (c.insert_when_anomalous or not self.anomalous)
+        if inserted:
             self.model.insert(d)
 
         # Line 11 and hysteresis.
@@ -271,7 +265,7 @@ class MetacognitiveMonitor:
             anomalous=self.anomalous,
             above=self.above,
             bandwidth=bandwidth_used,
-            inserted=beats,
+            inserted=inserted,
             gradient=gradient,
             contributors=contributors,
         )

@@ -59,7 +59,7 @@ class RobustStandardizer:
         min_history: int = 5,
         floor_abs: float = 1e-8,
         floor_rel: float = 1e-3,
-        z_clip: float = 6.0,
+        z_clip: float = 4.0,
     ) -> None:
         if dim < 1 or window < 1:
             raise ValueError("dim and window must be >= 1")
