@@ -1,0 +1,61 @@
+"""Hyperparameters of HARS (section 4.2.2, Table 1).
+
+This module imports nothing from MIRA so that :mod:`mira.config` can embed :class:`HarsConfig` in
+``TrainConfig`` without an import cycle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class HarsConfig:
+    """The inner-loop reward shaper: FAB (ϕ) → VPM (φ) potential, TCE (ψ) auxiliary, PBRS."""
+
+    align_weight: float = 1.0
+    """λ of eq. (10): weight of the TD alignment loss L_align (Table 1)."""
+    aux_weight: float = 0.1
+    """μ of eq. (10): weight of the TCE temporal-consistency loss L_aux (Table 1)."""
+    terminal_weight: float = 0.1
+    """η of eq. (11): penalty η·E[Φ(s_T)²] on true terminal states (the paper only asks η > 0)."""
+    entropy_weight: float = 1e-3
+    """Weight of the attention-entropy regulariser (maximises H(α) against premature collapse)."""
+    d_z: int = 64
+    """Factor embedding dimension d_z of the FAB (Table 1)."""
+    id_dim: int = 16
+    """Dimension of the learned per-name factor-ID embedding."""
+    id_slots: int = 64
+    """Initial rows of the name → ID-embedding table (grows on re-initialisation when exceeded)."""
+    fab_hidden: int = 64
+    """Hidden width of the per-factor embedder g_ϕ."""
+    query_hidden: int = 64
+    """Hidden width of the state query Q_ϕ(s)."""
+    tce_hidden: int = 128
+    """GRU hidden size of the Temporal Context Encoder (Table 1)."""
+    tce_window: int = 8
+    """Window length of consecutive same-episode steps the TCE sees (the last one is the target)."""
+    tce_batch: int | None = 64
+    """Sampled rows whose windows feed L_aux when it is computed (None: the whole batch)."""
+    tce_every: int = 4
+    """Compute L_aux (and step ψ) on every this many updates. The GRU over W − 1 steps is a chain of
+    small sequential ops that cost more than the rest of HARS on a CPU; every 4th update on 64 rows
+    keeps the auxiliary signal (16 windows per update on average) at a fraction of the cost.
+    1 = every update, as in Algorithm 3."""
+    vpm_hidden: int = 128
+    """Width of the two hidden layers of the Value Potential Mapping MLP (Table 1)."""
+    vpm_state_proj: bool = False
+    """Concatenate a learned state projection with v before the VPM ("optionally", section 4.2.2)."""
+    state_proj_dim: int = 32
+    """Width of that state projection (used only with ``vpm_state_proj``)."""
+    lr: float = 1e-4
+    """Adam learning rate of the one optimiser over (ϕ, φ, ψ) (Table 1's shared rate)."""
+    max_grad_norm: float | None = None
+    """Clip the joint gradient of (ϕ, φ, ψ) to this norm before the step (None: no clipping)."""
+    joint: bool = True
+    """Eq. (10): let the critic's loss flow into (ϕ, φ) through the shaped reward. False: Φ is
+    trained by L_align (+ regularisers) only and the agent sees a constant (detached) reward."""
+    input_clip: float = 10.0
+    """Normalised factor values and observations are clipped to ±this before entering the networks."""
+    recompute_chunk: int = 65_536
+    """Rows per vectorised pass of ``recompute_all`` (factor re-evaluation after a program change)."""

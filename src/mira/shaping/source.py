@@ -1,0 +1,490 @@
+"""HARS as a reward source: learned potential-based shaping over the PHI factors (section 4.2.2).
+
+Per stored transition the source evaluates the program's factors once (PHI at s and at s′, AUX at
+(s, a)) into its own columns, sized like the replay buffer. When a batch is sampled, ``relabel``
+gathers those columns and returns the PBRS reward of eq. (9) with absorbing terminals,
+
+    r_shape = r_ext + γ · Φ(s′) · (1 − terminated) − Φ(s),
+
+computed from the *current* potential (one forward over the concatenated [s; s′] batch). A time-
+limit truncation is not a terminal: there Φ(s′) is kept, exactly as the critic keeps bootstrapping.
+
+Joint objective (eq. 10). With ``joint=True`` (the default, as in the paper) the reward handed to the
+agent carries gradient into (ϕ, φ): the critic's TD loss L_RL is minimised over the shaping
+parameters as well as over θ. The agent steps only its own optimisers; the source's one Adam over
+(ϕ, φ, ψ) takes the step in ``update``. Rather than letting the agent's ``backward`` walk the HARS
+graph, the reward is built from a detached leaf copy of Φ; the agent's backward deposits ∂L_RL/∂Φ
+on that leaf, and ``update`` backpropagates ``λ L_align + μ L_aux − β H(α) + ⟨∂L_RL/∂Φ, Φ⟩``
+through the HARS graph once. By the chain rule this is exactly the gradient of
+``L_RL + λ L_align + μ L_aux − β H(α)`` w.r.t. (ϕ, φ, ψ), with one forward and one backward per step.
+
+Why joint, and the alternative: the paper optimises L_inner over (θ, ϕ, ψ, φ) together, so the
+critic's error also shapes Φ (Φ moves towards potentials under which the shaped Bellman targets are
+easier to fit), while L_align anchors Φ to the extrinsic value so that this cannot drift freely.
+PBRS keeps the optimal policy set invariant for *any* Φ, so this coupling changes the learning
+dynamics, never the fixed point of the task. ``joint=False`` gives the common two-timescale variant:
+the agent sees a constant (detached) reward and Φ is fitted by L_align and the regularisers alone,
+which is simpler to reason about and slightly cheaper.
+
+L_align (eq. 11) is the TD loss ``(Φ(s) − (r_ext + γ(1 − d) Φ(s′)))²`` with the target side
+stopped (no leakage of the shaping term: the target uses r_ext) plus ``η · E[Φ(s_T)²]`` over true
+terminal states s_T. L_aux is the TCE's ``‖v_t − v̂_t‖²``, where v̂_t is predicted by a GRU from the
+previous (up to W − 1) aggregations of the same episode (windows built from the buffer's episode id
+and step, masked across episode starts). The target v_t is stop-gradient: otherwise the cheapest
+way to lower L_aux would be to collapse v (make it constant); the context side keeps its gradient,
+so L_aux trains ψ and also nudges ϕ towards temporally predictable (smooth) aggregations. The TCE
+never feeds Φ. It runs on ``tce_batch`` sampled rows every ``tce_every`` updates (its windows are
+evaluated in the same FAB forward as [s; s′]); the logged ``l_aux`` is the latest computed value.
+
+A structural edit (``set_program``, section 4.4.5) re-initialises ϕ and φ and their optimiser state,
+keeps ψ (and its optimiser state) and never touches the agent, and re-evaluates the new factors on
+every stored transition.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from mira.agents.networks import make_adam
+from mira.replay import Batch
+from mira.rewards.base import RewardContext, RewardSource
+from mira.shaping.config import HarsConfig
+from mira.shaping.factors import (
+    META_DIM,
+    FactorMeta,
+    FactorSource,
+    ProgramFactorSource,
+    RunningStats,
+    meta_features,
+)
+from mira.shaping.networks import FactorAttentionBlock, TemporalContextEncoder, ValuePotential, attention_entropy
+
+STD_FLOOR = 1e-4
+BASE_LOG_FIELDS = ("phi_mean", "phi_std", "l_align", "l_aux", "attn_entropy", "rpe")
+
+
+@dataclass
+class _Pending:
+    """The forward pass made in ``relabel``, reused by ``update`` for the same batch."""
+
+    batch: Batch
+    phi: torch.Tensor  # [2B] Φ over [s; s′], with graph
+    v: torch.Tensor  # [2B, d_z]
+    alpha: torch.Tensor  # [2B, K]
+    leaf: torch.Tensor | None  # detached copy of phi the agent backpropagated into (joint mode)
+    v_ctx: torch.Tensor | None  # [n, W-1, d_z] TCE context aggregations, with graph
+    ctx_valid: torch.Tensor | None  # [n, W-1] bool
+
+
+def _name_seed(*parts: object) -> int:
+    digest = hashlib.sha256(":".join(str(p) for p in parts).encode()).digest()
+    return int.from_bytes(digest[:8], "little") & ((1 << 63) - 1)
+
+
+@contextmanager
+def _seeded(seed: int) -> Iterator[None]:
+    """Run with torch's CPU generator seeded to ``seed``, leaving the global stream untouched."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        yield
+
+
+class HarsReward(RewardSource):
+    """Hierarchical Attention-based Reward Shaping (FAB → VPM potential, TCE auxiliary, PBRS)."""
+
+    name = "hars"
+    log_fields: tuple[str, ...] = BASE_LOG_FIELDS
+
+    def __init__(self, factors: FactorSource, config: HarsConfig | None = None) -> None:
+        self.config = config or HarsConfig()
+        self.factors: FactorSource = factors
+        self.slots: dict[str, int] = {}
+        self._assign_slots(factors.phi_names)
+        self.log_fields = BASE_LOG_FIELDS + tuple(f"attn_{n}" for n in factors.phi_names)
+        self.generation = 0
+        self.updates = 0
+        self._pending: _Pending | None = None
+        self._bound = False
+        self._last_l_aux = torch.zeros(())
+
+    # --------------------------------------------------------------------------------- set-up
+    def bind(self, ctx: RewardContext) -> None:
+        super().bind(ctx)
+        cfg = self.config
+        self.gamma = float(ctx.gamma)
+        self.device = ctx.device
+        self.obs_dim = int(ctx.obs_dim)
+        self.obs_stats = RunningStats(self.obs_dim)
+        self._last_l_aux = torch.zeros((), device=self.device)
+        with _seeded(_name_seed(ctx.seed, "tce")):
+            self.tce = TemporalContextEncoder(cfg.d_z, hidden=cfg.tce_hidden).to(self.device)
+        self._install(self.factors)
+        self._build_phi_nets(keep_tce_state=False)
+        self._bound = True
+
+    def _assign_slots(self, names: Sequence[str]) -> None:
+        for n in names:
+            if n not in self.slots:
+                self.slots[n] = len(self.slots)
+
+    def _install(self, factors: FactorSource) -> None:
+        """Point the source at ``factors``: names, slots, columns, static metadata (no networks)."""
+        self.factors = factors
+        self.phi_names = list(factors.phi_names)
+        self.aux_names = list(factors.aux_names)
+        self._assign_slots(self.phi_names)
+        self._attn_keys = [f"attn_{n}" for n in self.phi_names]
+        k, k_aux = len(self.phi_names), len(self.aux_names)
+        cap = self.ctx.buffer.capacity
+        self.col_phi = torch.zeros((cap, k), dtype=torch.float32)
+        self.col_phi_next = torch.zeros((cap, k), dtype=torch.float32)
+        self.col_aux = torch.zeros((cap, k_aux), dtype=torch.float32)
+        self._np_phi, self._np_phi_next, self._np_aux = (
+            self.col_phi.numpy(), self.col_phi_next.numpy(), self.col_aux.numpy())
+        self.factor_stats = RunningStats(k)
+        self._meta_static = meta_features(self.phi_names, factors.meta, np.zeros(k), np.zeros(k))[:, :6]
+        self._slot_t = torch.tensor([self.slots[n] for n in self.phi_names], dtype=torch.long, device=self.device)
+
+    def _build_phi_nets(self, keep_tce_state: bool) -> None:
+        """Fresh FAB (ϕ) and VPM (φ) and a fresh optimiser (keeping ψ's Adam state if asked)."""
+        cfg = self.config
+        slots = cfg.id_slots
+        while slots < len(self.slots):
+            slots *= 2
+        with _seeded(_name_seed(self.ctx.seed, "phi", self.generation)):
+            fab = FactorAttentionBlock(self.obs_dim, d_z=cfg.d_z, id_dim=cfg.id_dim, id_slots=slots,
+                                       hidden=cfg.fab_hidden, query_hidden=cfg.query_hidden)
+            vpm = ValuePotential(cfg.d_z, self.obs_dim, hidden=cfg.vpm_hidden, state_proj=cfg.vpm_state_proj,
+                                 state_proj_dim=cfg.state_proj_dim)
+        with torch.no_grad():
+            # Each name's initial ID embedding depends on the name (and seed, generation) only, not on
+            # its slot, so a fresh FAB gives the same Φ whatever the order the factors are listed in.
+            for name, slot in self.slots.items():
+                gen = torch.Generator().manual_seed(_name_seed(self.ctx.seed, "id", self.generation, name))
+                fab.id_table[slot] = torch.randn(cfg.id_dim, generator=gen)
+        self.fab, self.vpm = fab.to(self.device), vpm.to(self.device)
+        old = getattr(self, "opt", None)
+        params = [*self.fab.parameters(), *self.vpm.parameters(), *self.tce.parameters()]
+        self.opt = make_adam(params, cfg.lr)
+        if keep_tce_state and old is not None:
+            for p in self.tce.parameters():
+                if p in old.state:
+                    self.opt.state[p] = old.state[p]
+        self._pending = None
+
+    # ------------------------------------------------------------------------- factor columns
+    def on_transition(self, row: int) -> None:
+        buf = self.ctx.buffer
+        obs, next_obs, act = buf.obs[row].numpy(), buf.next_obs[row].numpy(), buf.action[row].numpy()
+        fast = getattr(self.factors, "transition", None)
+        if fast is not None:
+            phi_s, phi_next, aux = fast(obs, next_obs, act)
+        else:
+            vals = self.factors.phi(np.stack([obs, next_obs]))
+            phi_s, phi_next = vals[0], vals[1]
+            aux = self.factors.aux(obs[None], act[None])[0] if self.aux_names else None
+        self._np_phi[row] = phi_s
+        self._np_phi_next[row] = phi_next
+        if self.aux_names:
+            self._np_aux[row] = aux
+        self.factor_stats.update(phi_s)
+        self.obs_stats.update(obs)
+
+    def recompute_all(self, reset_stats: bool = True) -> None:
+        """Re-evaluate every stored transition's factors in vectorised chunks (after a program change).
+
+        With ``reset_stats`` the factor normalisation statistics restart from the stored states.
+        """
+        buf = self.ctx.buffer
+        n = buf.size
+        chunk = max(1, self.config.recompute_chunk)
+        stats = RunningStats(len(self.phi_names))
+        for start in range(0, n, chunk):
+            stop = min(n, start + chunk)
+            obs = buf.obs[start:stop].numpy()
+            vals = self.factors.phi(obs)
+            self._np_phi[start:stop] = vals
+            self._np_phi_next[start:stop] = self.factors.phi(buf.next_obs[start:stop].numpy())
+            if self.aux_names:
+                self._np_aux[start:stop] = self.factors.aux(obs, buf.action[start:stop].numpy())
+            stats.update(vals)
+        if reset_stats:
+            self.factor_stats = stats
+
+    # ------------------------------------------------------------------------------- forward
+    def _norm(self) -> tuple[torch.Tensor, ...]:
+        """Normalisation tensors of factors and observations and the metadata matrix, on the device."""
+        f_mean, f_std = self.factor_stats.mean, np.maximum(self.factor_stats.std, STD_FLOOR)
+        meta = np.concatenate([self._meta_static, np.stack([np.sign(f_mean) * np.log1p(np.abs(f_mean)),
+                                                            np.log1p(f_std)], axis=1)], axis=1)
+        o_mean, o_std = self.obs_stats.mean, np.maximum(self.obs_stats.std, STD_FLOOR)
+        dev = self.device
+        return (torch.from_numpy(f_mean.astype(np.float32)).to(dev), torch.from_numpy(f_std.astype(np.float32)).to(dev),
+                torch.from_numpy(meta.astype(np.float32)).to(dev), torch.from_numpy(o_mean.astype(np.float32)).to(dev),
+                torch.from_numpy(o_std.astype(np.float32)).to(dev))
+
+    def _forward(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...],
+                 ids: torch.Tensor | None = None, n_phi: int | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Φ ``[n_phi]``, v ``[N, d_z]`` and α ``[N, K]`` from raw factor values and raw observations
+        (Φ only for the first ``n_phi`` rows, default all)."""
+        f_mean, f_std, meta, o_mean, o_std = norm
+        c = self.config.input_clip
+        x = ((f - f_mean) / f_std).clamp_(-c, c)
+        o = ((obs - o_mean) / o_std).clamp_(-c, c)
+        v, alpha, _ = self.fab(x, o, self.fab.ids(self._slot_t) if ids is None else ids, meta)
+        if n_phi is None:
+            return self.vpm(v, o), v, alpha
+        return self.vpm(v[:n_phi], o[:n_phi]), v, alpha
+
+    def _window_rows(self, rows: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """Buffer rows of the W − 1 steps before each of ``rows`` (oldest first) and their validity."""
+        buf = self.ctx.buffer
+        w = self.config.tce_window
+        r = torch.from_numpy(rows)
+        offs = torch.arange(w - 1, 0, -1)
+        past = (r[:, None] - offs[None, :]) % buf.capacity
+        valid = (buf.episode_step[r][:, None] >= offs[None, :]) & (buf.episode_id[past] == buf.episode_id[r][:, None])
+        return past, valid
+
+    def relabel(self, batch: Batch) -> torch.Tensor:
+        b = batch.reward.shape[0]
+        idx = torch.from_numpy(batch.indices)
+        f = torch.cat([self.col_phi[idx], self.col_phi_next[idx]])
+        obs = torch.cat([batch.obs, batch.next_obs])
+        track = torch.is_grad_enabled()
+        cfg = self.config
+        n_ctx = 0
+        past = valid = None
+        if track and cfg.aux_weight > 0 and cfg.tce_window >= 2 and self.updates % max(1, cfg.tce_every) == 0:
+            n_ctx = b if cfg.tce_batch is None else min(b, cfg.tce_batch)
+            past, valid = self._window_rows(batch.indices[:n_ctx])
+            flat = past.reshape(-1)
+            f = torch.cat([f.to(self.device), self.col_phi[flat].to(self.device)])
+            obs = torch.cat([obs, self.ctx.buffer.obs[flat].to(self.device)])
+        phi, v_all, alpha_all = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
+        v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
+        if not track:
+            return batch.reward + self.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b]
+        leaf = phi.detach()
+        if cfg.joint:
+            leaf.requires_grad_(True)
+        v_ctx = v_all[2 * b :].reshape(n_ctx, cfg.tce_window - 1, -1) if past is not None else None
+        self._pending = _Pending(batch, phi, v, alpha, leaf if cfg.joint else None, v_ctx,
+                                 None if valid is None else valid.to(self.device))
+        return batch.reward + self.gamma * (1.0 - batch.terminated) * leaf[b:] - leaf[:b]
+
+    # -------------------------------------------------------------------------------- update
+    def update(self, batch: Batch, step: int) -> dict[str, torch.Tensor]:
+        pending, self._pending = self._pending, None
+        if pending is None or pending.batch is not batch:
+            with torch.enable_grad():
+                self.relabel(batch)
+            pending, self._pending = self._pending, None
+            assert pending is not None
+            pending.leaf = None  # no critic gradient was taken through this forward
+        cfg = self.config
+        b = batch.reward.shape[0]
+        phi_s, phi_n = pending.phi[:b], pending.phi[b:]
+        term = batch.terminated
+        target = (batch.reward + self.gamma * (1.0 - term) * phi_n).detach()
+        td = phi_s - target
+        l_td = td.pow(2).mean()
+        l_term = (term * phi_n.pow(2)).sum() / term.sum().clamp_min(1.0)
+        l_align = l_td + cfg.terminal_weight * l_term
+        entropy = attention_entropy(pending.alpha).mean()
+        l_aux = self._aux_loss(pending, b)
+        if pending.v_ctx is not None:
+            self._last_l_aux = l_aux.detach()
+        loss = cfg.align_weight * l_align + cfg.aux_weight * l_aux - cfg.entropy_weight * entropy
+        if pending.leaf is not None and pending.leaf.grad is not None:
+            loss = loss + (pending.leaf.grad * pending.phi).sum()
+        loss.backward()
+        if cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_([p for g in self.opt.param_groups for p in g["params"]],
+                                           cfg.max_grad_norm)
+        self.opt.step()
+        self.opt.zero_grad(set_to_none=True)
+        self.updates += 1
+        with torch.no_grad():
+            phi_d = phi_s.detach()
+            metrics = {
+                "phi_mean": phi_d.mean(),
+                "phi_std": phi_d.std(unbiased=False),
+                "l_align": l_align.detach(),
+                "l_aux": self._last_l_aux,  # the latest computed value (L_aux runs every tce_every)
+                "attn_entropy": entropy.detach(),
+                "rpe": l_td.detach() / (target.var(unbiased=False) + 1e-8),
+            }
+            if self._attn_keys:
+                metrics.update(zip(self._attn_keys, pending.alpha[:b].detach().mean(0).unbind(), strict=True))
+        return metrics
+
+    def _aux_loss(self, pending: _Pending, b: int) -> torch.Tensor:
+        if pending.v_ctx is None or pending.ctx_valid is None or pending.v_ctx.shape[0] == 0:
+            return pending.phi.new_zeros(())
+        n = pending.v_ctx.shape[0]
+        pred = self.tce(pending.v_ctx, pending.ctx_valid)
+        err = (pred - pending.v[:n].detach()).pow(2).sum(-1)
+        has_past = pending.ctx_valid[:, -1].to(err.dtype)
+        return (err * has_past).sum() / has_past.sum().clamp_min(1.0)
+
+    # ------------------------------------------------------------------ structural update (4.4.5)
+    def set_program(self, factors: FactorSource) -> None:
+        """Switch to a new factor set: fresh ϕ, φ (and their Adam state), ψ kept, columns recomputed."""
+        if not self._bound:  # before training: nothing to re-initialise yet
+            self.factors = factors
+            self._assign_slots(factors.phi_names)
+            self.log_fields = BASE_LOG_FIELDS + tuple(f"attn_{n}" for n in factors.phi_names)
+            return
+        self.generation += 1
+        self._install(factors)
+        self.recompute_all(reset_stats=True)
+        self._build_phi_nets(keep_tce_state=True)
+
+    # ---------------------------------------------------------------------- monitor helpers
+    def _as_numpy(self, obs: np.ndarray | torch.Tensor) -> np.ndarray:
+        if isinstance(obs, torch.Tensor):
+            obs = obs.detach().cpu().numpy()
+        return np.asarray(obs, dtype=np.float32).reshape(-1, self.obs_dim)
+
+    def _chunks(self, n: int) -> Iterator[slice]:
+        step = max(1, self.config.recompute_chunk)
+        for start in range(0, n, step):
+            yield slice(start, min(n, start + step))
+
+    @torch.no_grad()
+    def potential(self, obs: np.ndarray | torch.Tensor) -> torch.Tensor:
+        """Current Φ(s) of a batch of raw observations ``[B, obs_dim]`` (CPU tensor ``[B]``, no grad)."""
+        o = self._as_numpy(obs)
+        norm = self._norm()
+        out = []
+        for sl in self._chunks(o.shape[0]):
+            f = torch.from_numpy(self.factors.phi(o[sl]).astype(np.float32)).to(self.device)
+            out.append(self._forward(f, torch.from_numpy(o[sl]).to(self.device), norm)[0].cpu())
+        return torch.cat(out) if out else torch.zeros(0)
+
+    @torch.no_grad()
+    def attention(self, obs: np.ndarray | torch.Tensor) -> dict[str, float]:
+        """Mean attention weight α_i per PHI factor name over a batch of raw observations."""
+        o = self._as_numpy(obs)
+        if o.shape[0] == 0 or not self.phi_names:
+            return dict.fromkeys(self.phi_names, 0.0)
+        norm = self._norm()
+        total = torch.zeros(len(self.phi_names), dtype=torch.float64)
+        for sl in self._chunks(o.shape[0]):
+            f = torch.from_numpy(self.factors.phi(o[sl]).astype(np.float32)).to(self.device)
+            alpha = self._forward(f, torch.from_numpy(o[sl]).to(self.device), norm)[2]
+            total += alpha.double().sum(0).cpu()
+        return {n: float(a) for n, a in zip(self.phi_names, (total / o.shape[0]).tolist(), strict=True)}
+
+    @torch.no_grad()
+    def proxy_potential(self, candidate: FactorSource, obs: np.ndarray | torch.Tensor) -> torch.Tensor:
+        """Φ̃(s): a candidate program's PHI factors through the *frozen* FAB/VPM (section 4.4.4).
+
+        Factors the current program also has keep their ID embedding and normalisation statistics.
+        A new name has no trained embedding; it gets the mean ID embedding of the current factors
+        (the centroid of what the frozen g_ϕ was trained on, i.e. "a typical factor", favouring none)
+        and is normalised by its own mean and std over ``obs``. Metadata comes from the candidate.
+        """
+        o = self._as_numpy(obs)
+        names = list(candidate.phi_names)
+        vals = candidate.phi(o).astype(np.float64) if names else np.zeros((o.shape[0], 0))
+        pos = {n: j for j, n in enumerate(self.phi_names)}
+        cur_mean, cur_std = self.factor_stats.mean, np.maximum(self.factor_stats.std, STD_FLOOR)
+        mean = np.array([cur_mean[pos[n]] if n in pos else vals[:, j].mean() if len(vals) else 0.0
+                         for j, n in enumerate(names)], dtype=np.float64)
+        std = np.array([cur_std[pos[n]] if n in pos else max(float(vals[:, j].std()) if len(vals) else 1.0,
+                                                                  STD_FLOOR)
+                        for j, n in enumerate(names)], dtype=np.float64)
+        meta = meta_features(names, candidate.meta, mean, std)
+        known = self.fab.ids(self._slot_t)
+        fallback = known.mean(0) if known.shape[0] else torch.zeros(self.config.id_dim, device=self.device)
+        ids = torch.stack([known[pos[n]] if n in pos else fallback for n in names]) if names else known[:0]
+        _, _, _, o_mean, o_std = self._norm()
+        norm = (torch.from_numpy(mean.astype(np.float32)).to(self.device),
+                torch.from_numpy(std.astype(np.float32)).to(self.device),
+                torch.from_numpy(meta).to(self.device), o_mean, o_std)
+        out = []
+        for sl in self._chunks(o.shape[0]):
+            f = torch.from_numpy(vals[sl].astype(np.float32)).to(self.device)
+            out.append(self._forward(f, torch.from_numpy(o[sl]).to(self.device), norm, ids=ids)[0].cpu())
+        return torch.cat(out) if out else torch.zeros(0)
+
+    # ------------------------------------------------------------------------- bookkeeping
+    @property
+    def program(self) -> Any:
+        """The current :class:`FactorProgram` when the factor source has one (else None)."""
+        return getattr(self.factors, "program", None)
+
+    def phi_parameters(self) -> list[torch.nn.Parameter]:
+        """ϕ and φ: what a structural edit re-initialises."""
+        return [*self.fab.parameters(), *self.vpm.parameters()]
+
+    def describe(self) -> dict[str, Any]:
+        prog = self.program
+        return {"method": self.name, "phi_factors": list(self.factors.phi_names),
+                "aux_factors": list(self.factors.aux_names), "hars": asdict(self.config),
+                "program_version": None if prog is None else prog.version}
+
+    def state_dict(self) -> dict[str, Any]:
+        n = self.ctx.buffer.size
+        prog = self.program
+        return {
+            "format": 1,
+            "generation": self.generation,
+            "updates": self.updates,
+            "last_l_aux": self._last_l_aux.detach().cpu(),
+            "slots": dict(self.slots),
+            "phi_names": list(self.phi_names),
+            "aux_names": list(self.aux_names),
+            "program": None if prog is None else prog.to_json(),
+            "fab": self.fab.state_dict(),
+            "vpm": self.vpm.state_dict(),
+            "tce": self.tce.state_dict(),
+            "opt": self.opt.state_dict(),
+            "factor_stats": self.factor_stats.state_dict(),
+            "obs_stats": self.obs_stats.state_dict(),
+            "columns": {"phi": self.col_phi[:n].clone(), "phi_next": self.col_phi_next[:n].clone(),
+                        "aux": self.col_aux[:n].clone()},
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state["program"] is not None and (self.program is None
+                                             or self.program.to_json() != state["program"]):
+            from mira.factors.program import FactorProgram
+
+            self._install(ProgramFactorSource(FactorProgram.from_json(state["program"]), self.ctx.card))
+        if list(self.factors.phi_names) != state["phi_names"] or list(self.factors.aux_names) != state["aux_names"]:
+            raise ValueError(f"checkpoint HARS factors {state['phi_names']} | {state['aux_names']} do not match "
+                             f"the current program {self.factors.phi_names} | {self.factors.aux_names}")
+        self.slots = dict(state["slots"])
+        self.generation = int(state["generation"])
+        self._install(self.factors)
+        self._build_phi_nets(keep_tce_state=False)
+        if self.fab.id_slots != state["fab"]["id_table"].shape[0]:
+            raise ValueError("checkpoint HARS ID table size does not match")
+        self.fab.load_state_dict(state["fab"])
+        self.vpm.load_state_dict(state["vpm"])
+        self.tce.load_state_dict(state["tce"])
+        self.opt.load_state_dict(state["opt"])
+        self.updates = int(state["updates"])
+        self._last_l_aux = state["last_l_aux"].to(self.device)
+        self.factor_stats.load_state_dict(state["factor_stats"])
+        self.obs_stats.load_state_dict(state["obs_stats"])
+        cols = state["columns"]
+        n = cols["phi"].shape[0]
+        self.col_phi[:n] = cols["phi"]
+        self.col_phi_next[:n] = cols["phi_next"]
+        self.col_aux[:n] = cols["aux"]
+        self._pending = None
+
+
+__all__ = ["META_DIM", "FactorMeta", "FactorSource", "HarsReward"]

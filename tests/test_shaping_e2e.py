@@ -1,0 +1,71 @@
+"""``mira train --method hars`` end to end (a few thousand steps, small networks)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from mira.cli import main
+from mira.factors.examples import example_program
+from mira.runio.csvlog import read_csv
+
+HARS_COLUMNS = ("phi_mean", "phi_std", "l_align", "l_aux", "attn_entropy", "rpe")
+
+
+def _check(run: Path, phi_names: list[str]) -> None:
+    rows = read_csv(run / "train.csv")
+    assert rows
+    for col in (*HARS_COLUMNS, *(f"attn_{n}" for n in phi_names)):
+        assert col in rows[0], col
+    trained = [r for r in rows if r["l_align"] != ""]
+    assert trained and all(float(r["rpe"]) >= 0 for r in trained)
+    attn = sum(float(trained[-1][f"attn_{n}"]) for n in phi_names)
+    assert attn == pytest.approx(1.0, abs=1e-3)
+    program = json.loads((run / "programs" / "v000.json").read_text())
+    assert [f["name"] for f in program["factors"] if f["type"] == "PHI"] == phi_names
+    config = json.loads((run / "config.json").read_text())
+    assert config["config"]["hars"]["align_weight"] == 1.0
+    assert config["method"]["method"] == "hars"
+    assert int(read_csv(run / "eval.csv")[-1]["step"]) == 3000
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("task", "algo", "phi_names"),
+    [
+        ("halfcheetah", "sac", ["r_vel", "r_upright", "r_stable"]),
+        ("halfcheetah", "ddpg", ["r_vel", "r_upright", "r_stable"]),
+        ("humanoidstandup", "sac", ["r_height", "r_survival", "r_stable"]),
+    ],
+)
+def test_train_hars_with_the_offline_engineer(tmp_path: Path, fast_train_args: list[str], task: str, algo: str,
+                                              phi_names: list[str]) -> None:
+    run = tmp_path / "run"
+    code = main(["train", "--task", task, "--method", "hars", "--algo", algo, "--steps", "3000", "--seed", "0",
+                 "--out", str(run), *fast_train_args])
+    assert code == 0
+    _check(run, phi_names)
+    assert (run / "llm" / "exchanges.jsonl").is_file()  # the LSFS exchange is audited
+
+
+@pytest.mark.slow
+def test_train_hars_from_a_program_file(tmp_path: Path, fast_train_args: list[str]) -> None:
+    program = tmp_path / "f1.json"
+    program.write_text(json.dumps(example_program("halfcheetah", 1).to_json()))
+    run = tmp_path / "run"
+    code = main(["train", "--task", "halfcheetah", "--method", "hars", "--algo", "ddpg", "--steps", "3000",
+                 "--out", str(run), "--program", str(program), *fast_train_args])
+    assert code == 0
+    phi = [f.name for f in example_program("halfcheetah", 1).phi_factors]
+    _check(run, phi)
+    assert not (run / "llm" / "exchanges.jsonl").exists()  # no engineer was asked
+
+
+def test_program_for_another_task_is_a_usage_error(tmp_path: Path, fast_train_args: list[str]) -> None:
+    program = tmp_path / "p.json"
+    program.write_text(json.dumps(example_program("humanoidstandup", 0).to_json()))
+    code = main(["train", "--task", "halfcheetah", "--method", "hars", "--steps", "600", "--out",
+                 str(tmp_path / "run"), "--program", str(program), *fast_train_args])
+    assert code == 2

@@ -1,0 +1,142 @@
+"""HARS networks: the factor attention is a set function keyed by names, masking is dropping, the TCE
+ignores padding."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mira.shaping.factors import META_DIM
+from mira.shaping.networks import FactorAttentionBlock, TemporalContextEncoder, attention_entropy
+from mira.shaping.testing import fill_episodes, make_hars, toy_factors
+
+OBS = 7
+
+
+def _fab(seed: int = 0) -> FactorAttentionBlock:
+    torch.manual_seed(seed)
+    return FactorAttentionBlock(OBS, d_z=16, id_dim=8, id_slots=16, hidden=16, query_hidden=16)
+
+
+def _inputs(b: int, k: int, seed: int = 1) -> tuple[torch.Tensor, ...]:
+    g = torch.Generator().manual_seed(seed)
+    return (torch.randn(b, k, generator=g), torch.randn(b, OBS, generator=g), torch.randn(k, 8, generator=g),
+            torch.randn(k, META_DIM, generator=g))
+
+
+@pytest.mark.parametrize("k", [1, 2, 5, 12, 16])
+def test_attention_is_permutation_invariant(k: int) -> None:
+    fab = _fab()
+    x, obs, ids, meta = _inputs(9, k)
+    v, alpha, _ = fab(x, obs, ids, meta)
+    perm = torch.randperm(k, generator=torch.Generator().manual_seed(k))
+    v_p, alpha_p, _ = fab(x[:, perm], obs, ids[perm], meta[perm])
+    torch.testing.assert_close(v_p, v, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(alpha_p, alpha[:, perm], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(alpha.sum(-1), torch.ones(9))
+    assert torch.isfinite(attention_entropy(alpha)).all()
+
+
+def test_single_factor_gets_all_attention() -> None:
+    fab = _fab()
+    x, obs, ids, meta = _inputs(4, 1)
+    v, alpha, z = fab(x, obs, ids, meta)
+    assert torch.equal(alpha, torch.ones(4, 1))
+    torch.testing.assert_close(v, z[:, 0])
+    torch.testing.assert_close(attention_entropy(alpha), torch.zeros(4))
+
+
+def test_masking_a_factor_equals_dropping_it() -> None:
+    fab = _fab()
+    x, obs, ids, meta = _inputs(6, 12)
+    keep = torch.tensor([0, 2, 3, 5, 6, 7, 9, 11])
+    mask = torch.zeros(12, dtype=torch.bool)
+    mask[keep] = True
+    v_m, a_m, _ = fab(x, obs, ids, meta, mask)
+    v_d, a_d, _ = fab(x[:, keep], obs, ids[keep], meta[keep])
+    torch.testing.assert_close(v_m, v_d, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(a_m[:, keep], a_d, rtol=1e-5, atol=1e-6)
+    assert torch.all(a_m[:, ~mask] == 0)
+
+    # per-row masks: each row drops a different set, still equal to dropping per row
+    row_mask = torch.rand(6, 12, generator=torch.Generator().manual_seed(3)) > 0.5
+    row_mask[:, 0] = True
+    row_mask[5] = False  # a row with nothing present: no attention, v = 0, no NaN
+    v_r, a_r, _ = fab(x, obs, ids, meta, row_mask)
+    for i in range(5):
+        cols = row_mask[i].nonzero().squeeze(1)
+        v_i, _, _ = fab(x[i : i + 1, cols], obs[i : i + 1], ids[cols], meta[cols])
+        torch.testing.assert_close(v_r[i : i + 1], v_i, rtol=1e-5, atol=1e-6)
+    assert torch.all(a_r[5] == 0) and torch.all(v_r[5] == 0)
+    assert torch.isfinite(v_r).all()
+
+
+def test_masked_factor_values_do_not_matter_and_gradients_stay_finite() -> None:
+    fab = _fab()
+    x, obs, ids, meta = _inputs(5, 4)
+    mask = torch.tensor([True, False, True, True])
+    x2 = x.clone()
+    x2[:, 1] = 1e6
+    v1, _, _ = fab(x, obs, ids, meta, mask)
+    v2, _, _ = fab(x2, obs, ids, meta, mask)
+    torch.testing.assert_close(v1, v2)
+    none = torch.zeros(4, dtype=torch.bool)
+    v0, _, _ = fab(x, obs, ids, meta, none)
+    v0.sum().backward()
+    assert all(p.grad is None or torch.isfinite(p.grad).all() for p in fab.parameters())
+
+
+def test_zero_factors_give_zero_aggregation() -> None:
+    fab = _fab()
+    v, alpha, _ = fab(torch.zeros(3, 0), torch.randn(3, OBS), torch.zeros(0, 8), torch.zeros(0, META_DIM))
+    assert v.shape == (3, 16) and alpha.shape == (3, 0) and torch.all(v == 0)
+
+
+def test_tce_ignores_padding_before_the_episode_start() -> None:
+    torch.manual_seed(0)
+    tce = TemporalContextEncoder(8, hidden=16)
+    ctx = torch.randn(3, 7, 8)
+    valid = torch.zeros(3, 7, dtype=torch.bool)
+    valid[0, :] = True
+    valid[1, 4:] = True  # three steps of history
+    # row 2: no history at all
+    out = tce(ctx, valid)
+    noisy = ctx.clone()
+    noisy[1, :4] = 1e3
+    noisy[2] = -1e3
+    torch.testing.assert_close(tce(noisy, valid), out)
+    short = tce(ctx[1:2, 4:], torch.ones(1, 3, dtype=torch.bool))
+    torch.testing.assert_close(out[1:2], short)
+
+
+def test_fresh_potential_does_not_depend_on_factor_order() -> None:
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(32, 6)).astype(np.float32)
+    a, buf_a = make_hars(toy_factors(["f_a", "f_b", "f_c"]), seed=3)
+    b, buf_b = make_hars(toy_factors(["f_c", "f_a", "f_b"]), seed=3)
+    for src, buf in ((a, buf_a), (b, buf_b)):
+        fill_episodes(src, buf, [20], np.random.default_rng(1))
+    torch.testing.assert_close(a.potential(obs), b.potential(obs), rtol=1e-5, atol=1e-6)
+    att_a, att_b = a.attention(obs), b.attention(obs)
+    assert att_a.keys() == att_b.keys()
+    for name in att_a:
+        assert att_a[name] == pytest.approx(att_b[name], abs=1e-6)
+
+
+def test_id_embedding_follows_the_name_after_training() -> None:
+    rng = np.random.default_rng(0)
+    src, buf = make_hars(toy_factors(["f_a", "f_b", "f_c"]))
+    fill_episodes(src, buf, [30, 30], rng)
+    for step in range(5):
+        batch = buf.sample(16, rng)
+        src.relabel(batch)
+        src.update(batch, step)
+    obs = rng.normal(size=(20, 6)).astype(np.float32)
+    reordered = toy_factors(["f_b", "f_c", "f_a"])
+    torch.testing.assert_close(src.proxy_potential(reordered, obs), src.potential(obs), rtol=1e-5, atol=1e-5)
+    # the slots are a name table: a new name gets a fresh slot, old names keep theirs
+    slots = dict(src.slots)
+    src.set_program(toy_factors(["f_c", "f_new", "f_a"]))
+    assert {n: src.slots[n] for n in slots} == slots
+    assert src.slots["f_new"] == len(slots)

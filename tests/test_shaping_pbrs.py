@@ -1,0 +1,85 @@
+"""PBRS with absorbing terminals: shaped returns telescope for any potential."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mira.shaping.config import HarsConfig
+from mira.shaping.testing import fill_episodes, make_hars, toy_factors
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    length=st.integers(1, 40),
+    gamma=st.floats(0.5, 1.0),
+    terminate=st.booleans(),
+    scale=st.floats(0.01, 100.0),
+    sparse=st.booleans(),
+)
+def test_discounted_shaped_return_telescopes(seed: int, length: int, gamma: float, terminate: bool,
+                                             scale: float, sparse: bool) -> None:
+    src, buf = make_hars(toy_factors(), seed=seed, gamma=gamma, capacity=64,
+                         config=HarsConfig(vpm_state_proj=bool(seed % 2)))
+    with torch.no_grad():  # an arbitrary potential: random network, random output scale and offset
+        last = src.vpm.mlp[-1]
+        last.weight.mul_(scale)
+        last.bias.add_(scale * (seed % 7 - 3))
+    rng = np.random.default_rng(seed)
+    fill_episodes(src, buf, [3], rng)  # some history first (statistics, other rows)
+    (rows,) = fill_episodes(src, buf, [length], rng, terminate=terminate, sparse=sparse)
+    batch = buf.gather(rows)
+    with torch.no_grad():
+        shaped = src.relabel(batch).double().numpy()
+    disc = gamma ** np.arange(length)
+    extrinsic = float((disc * batch.reward.double().numpy()).sum())
+    phi0 = float(src.potential(batch.obs[:1])[0])
+    phi_t = float(src.potential(batch.next_obs[-1:])[0])
+    expected = extrinsic - phi0 + (0.0 if terminate else gamma**length * phi_t)
+    tol = 1e-4 * (1.0 + abs(phi0) + abs(phi_t) + np.abs(shaped).sum())
+    assert abs(float((disc * shaped).sum()) - expected) <= tol
+
+
+def test_terminal_next_state_has_zero_potential_but_truncation_keeps_it() -> None:
+    src, buf = make_hars(toy_factors())
+    rng = np.random.default_rng(0)
+    (term_rows,) = fill_episodes(src, buf, [5], rng, terminate=True)
+    (trunc_rows,) = fill_episodes(src, buf, [5], rng, terminate=False)
+    with torch.no_grad():
+        for rows, terminal in ((term_rows, True), (trunc_rows, False)):
+            batch = buf.gather(rows[-1:])
+            shaped = src.relabel(batch)
+            phi_s, phi_next = src.potential(batch.obs), src.potential(batch.next_obs)
+            assert float(phi_next.abs()) > 0  # the potential of s' itself is not zero
+            want = batch.reward - phi_s + (0.0 if terminal else src.gamma * phi_next)
+            torch.testing.assert_close(shaped, want, rtol=1e-5, atol=1e-5)
+
+
+def test_relabel_uses_the_current_potential() -> None:
+    src, buf = make_hars(toy_factors())
+    rng = np.random.default_rng(0)
+    fill_episodes(src, buf, [30], rng)
+    batch = buf.sample(16, rng)
+    with torch.no_grad():
+        before = src.relabel(batch)
+        src.vpm.mlp[-1].bias.add_(1.0)  # Φ ← Φ + 1: shaped reward moves by γ·1·(1 − d) − 1
+        after = src.relabel(batch)
+    torch.testing.assert_close(after - before, src.gamma * (1 - batch.terminated) - 1.0, rtol=1e-4, atol=1e-4)
+
+
+def test_terminal_penalty_pulls_terminal_potential_to_zero() -> None:
+    def final_terminal_phi_sq(eta: float) -> float:
+        cfg = HarsConfig(terminal_weight=eta, aux_weight=0.0, entropy_weight=0.0, lr=3e-3, joint=False)
+        src, buf = make_hars(toy_factors(), config=cfg)
+        rng = np.random.default_rng(0)
+        rows = [r[-1] for r in fill_episodes(src, buf, [4] * 8, rng, terminate=True)]
+        batch = buf.gather(np.asarray(rows))
+        for step in range(100):
+            src.relabel(batch)
+            src.update(batch, step)
+        return float(src.potential(batch.next_obs).pow(2).mean())
+
+    assert final_terminal_phi_sq(10.0) < 0.2 * final_terminal_phi_sq(0.0)

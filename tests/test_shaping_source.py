@@ -1,0 +1,225 @@
+"""The HARS reward source: columns, joint gradients, structural edits, checkpoints, monitor helpers."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from mira.agents import make_agent
+from mira.agents.base import AgentConfig
+from mira.factors.examples import example_program
+from mira.rewards.base import RewardContext
+from mira.shaping.config import HarsConfig
+from mira.shaping.factors import ProgramFactorSource, RunningStats
+from mira.shaping.source import BASE_LOG_FIELDS, HarsReward
+from mira.shaping.testing import fill_episodes, make_hars, toy_factors
+from mira.tasks.card import load_task
+
+
+def _filled(seed: int = 0, config: HarsConfig | None = None, capacity: int = 512,
+            names: tuple[str, ...] = ("f_a", "f_b", "f_c")) -> tuple[HarsReward, object, np.random.Generator]:
+    src, buf = make_hars(toy_factors(names), seed=seed, capacity=capacity, config=config)
+    rng = np.random.default_rng(seed)
+    fill_episodes(src, buf, [25, 40, 17], rng)
+    return src, buf, rng
+
+
+def _train(src: HarsReward, buf, rng: np.random.Generator, steps: int, batch_size: int = 32) -> list[dict]:
+    out = []
+    for step in range(steps):
+        batch = buf.sample(batch_size, rng)
+        src.relabel(batch)
+        out.append(src.update(batch, step))
+    return out
+
+
+def test_update_logs_every_field_and_leaves_no_gradients() -> None:
+    src, buf, rng = _filled()
+    assert src.log_fields == (*BASE_LOG_FIELDS, "attn_f_a", "attn_f_b", "attn_f_c")
+    metrics = _train(src, buf, rng, 3)[-1]
+    assert set(metrics) == set(src.log_fields)
+    assert all(isinstance(v, torch.Tensor) and v.dim() == 0 and torch.isfinite(v) for v in metrics.values())
+    assert float(sum(metrics[f"attn_{n}"] for n in ("f_a", "f_b", "f_c"))) == pytest.approx(1.0, abs=1e-5)
+    assert metrics["l_aux"] > 0  # windows of the same episode exist, so the TCE is trained
+    assert all(p.grad is None for g in src.opt.param_groups for p in g["params"])
+
+
+def test_update_changes_fab_vpm_and_tce() -> None:
+    src, buf, rng = _filled()
+    before = {k: v.clone() for m in (src.fab, src.vpm, src.tce) for k, v in m.state_dict().items()}
+    _train(src, buf, rng, 2)
+    after = {k: v for m in (src.fab, src.vpm, src.tce) for k, v in m.state_dict().items()}
+    changed = [k for k in before if not torch.equal(before[k], after[k])]
+    assert any(k.startswith("gru") for k in changed) and any(k.startswith("mlp") for k in changed)
+    assert "w_attn" in changed
+
+
+@pytest.mark.parametrize("algo", ["sac", "ddpg"])
+def test_joint_gradient_equals_backprop_through_the_critic(algo: str) -> None:
+    """The leaf trick gives exactly ∇(L_RL + λ L_align + ...) w.r.t. (ϕ, φ, ψ)."""
+    grads: list[list[torch.Tensor]] = []
+
+    def run(direct: bool) -> None:
+        torch.manual_seed(0)
+        src, buf, rng = _filled(config=HarsConfig(joint=True))
+        agent = make_agent(algo, 6, 2, AgentConfig(hidden=(16, 16), batch_size=32), torch.device("cpu"))
+        batch = buf.sample(32, rng)
+        reward = src.relabel(batch)
+        assert reward.requires_grad
+        captured: list[torch.Tensor] = []
+        params = [p for g in src.opt.param_groups for p in g["params"]]
+        src.opt.step = lambda *a, **k: captured.extend(  # type: ignore[method-assign]
+            torch.zeros_like(p) if p.grad is None else p.grad.clone() for p in params)
+        if direct:  # the naive way: the agent's backward walks a (second) HARS graph into the parameters
+            pend = src._pending
+            assert pend is not None
+            b = batch.reward.shape[0]
+            idx = torch.from_numpy(batch.indices)
+            f = torch.cat([src.col_phi[idx], src.col_phi_next[idx]])
+            phi = src._forward(f, torch.cat([batch.obs, batch.next_obs]), src._norm(), n_phi=2 * b)[0]
+            agent.update(batch, batch.reward + src.gamma * (1 - batch.terminated) * phi[b:] - phi[:b])
+            pend.leaf = None
+        else:
+            agent.update(batch, reward)
+        src.update(batch, 0)
+        grads.append(captured)
+
+    run(direct=False)
+    run(direct=True)
+    assert len(grads[0]) == len(grads[1]) > 0
+    for a, b in zip(grads[0], grads[1], strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
+    assert any(float(g.abs().sum()) > 0 for g in grads[0])
+
+
+def test_non_joint_reward_is_a_constant_for_the_agent() -> None:
+    src, buf, rng = _filled(config=HarsConfig(joint=False))
+    batch = buf.sample(16, rng)
+    assert not src.relabel(batch).requires_grad
+    src.update(batch, 0)
+
+
+def test_update_without_relabel_recomputes_the_forward() -> None:
+    src, buf, rng = _filled()
+    batch = buf.sample(16, rng)
+    metrics = src.update(batch, 0)
+    assert torch.isfinite(metrics["l_align"])
+
+
+def test_recompute_all_equals_per_row_values() -> None:
+    src, buf, _ = _filled(config=HarsConfig(recompute_chunk=7))
+    n = buf.size
+    cols = [c[:n].clone() for c in (src.col_phi, src.col_phi_next, src.col_aux)]
+    running = RunningStats(3)
+    running.load_state_dict(src.factor_stats.state_dict())
+    for c in (src.col_phi, src.col_phi_next, src.col_aux):
+        c.zero_()
+    src.recompute_all()
+    for before, c in zip(cols, (src.col_phi, src.col_phi_next, src.col_aux), strict=True):
+        assert torch.equal(before, c[:n])
+    # batch statistics after the reset agree with the per-row running (Welford) ones
+    np.testing.assert_allclose(src.factor_stats.mean, running.mean, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(src.factor_stats.var, running.var, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(src.factor_stats.mean, cols[0].double().mean(0).numpy(), rtol=1e-6, atol=1e-6)
+
+
+def test_set_program_reinitialises_exactly_phi_and_varphi() -> None:
+    src, buf, rng = _filled()
+    _train(src, buf, rng, 3)
+    tce_before = {k: v.clone() for k, v in src.tce.state_dict().items()}
+    tce_opt_before = {id(p): {k: v.clone() for k, v in src.opt.state[p].items()} for p in src.tce.parameters()}
+    phi_before = {k: v.clone() for m in ("fab", "vpm") for k, v in getattr(src, m).state_dict().items()}
+    old_fab = src.fab
+    new = toy_factors(("f_b", "f_d"))
+    src.set_program(new)
+    assert src.fab is not old_fab
+    for k, v in src.tce.state_dict().items():
+        assert torch.equal(v, tce_before[k]), k
+    for p in src.tce.parameters():  # ψ keeps its Adam moments
+        for k, v in src.opt.state[p].items():
+            assert torch.equal(v, tce_opt_before[id(p)][k])
+    for p in src.phi_parameters():  # ϕ, φ start with fresh optimiser state
+        assert p not in src.opt.state
+    after = {k: v for m in ("fab", "vpm") for k, v in getattr(src, m).state_dict().items()}
+    for k, v in after.items():
+        assert not torch.equal(v, phi_before[k]), k
+    assert src.phi_names == ["f_b", "f_d"] and src.col_phi.shape[1] == 2
+    per_row = new.phi(buf.obs[: buf.size].numpy())
+    np.testing.assert_array_equal(src.col_phi[: buf.size].numpy(), per_row.astype(np.float32))
+    metrics = _train(src, buf, rng, 2)[-1]
+    assert {"attn_f_b", "attn_f_d"} <= set(metrics)
+
+
+def test_state_round_trip_resumes_bit_identically() -> None:
+    a, buf, rng = _filled(seed=1)
+    _train(a, buf, rng, 4)
+    raw = io.BytesIO()
+    torch.save(a.state_dict(), raw)
+    raw.seek(0)
+    state = torch.load(raw, weights_only=False)
+
+    b, _ = make_hars(toy_factors(), seed=99, capacity=512)  # different init, same buffer below
+    b.ctx = a.ctx
+    b.load_state_dict(state)
+    for x, y in ((a.col_phi, b.col_phi), (a.col_phi_next, b.col_phi_next), (a.col_aux, b.col_aux)):
+        assert torch.equal(x[: buf.size], y[: buf.size])
+    seq = [buf.sample(32, rng) for _ in range(4)]
+    for step, batch in enumerate(seq):
+        ma = (a.relabel(batch).detach(), a.update(batch, step))
+        mb = (b.relabel(batch).detach(), b.update(batch, step))
+        assert torch.equal(ma[0], mb[0])
+        assert all(torch.equal(ma[1][k], mb[1][k]) for k in ma[1])
+    for ma_, mb_ in ((a.fab, b.fab), (a.vpm, b.vpm), (a.tce, b.tce)):
+        for (k, x), (_, y) in zip(ma_.state_dict().items(), mb_.state_dict().items(), strict=True):
+            assert torch.equal(x, y), k
+
+
+def test_monitor_helpers() -> None:
+    src, buf, rng = _filled()
+    _train(src, buf, rng, 2)
+    obs = torch.from_numpy(rng.normal(size=(50, 6)).astype(np.float32))
+    phi = src.potential(obs)
+    assert phi.shape == (50,) and not phi.requires_grad
+    att = src.attention(obs)
+    assert list(att) == ["f_a", "f_b", "f_c"] and sum(att.values()) == pytest.approx(1.0)
+    # the same factors through the frozen networks: the proxy is the potential itself
+    torch.testing.assert_close(src.proxy_potential(toy_factors(), obs), phi, rtol=1e-5, atol=1e-5)
+    # a candidate with a new name and a dropped one: frozen networks, finite values, nothing trained
+    before = [p.clone() for p in src.phi_parameters()]
+    proxy = src.proxy_potential(toy_factors(("f_a", "f_zz")), obs)
+    assert proxy.shape == (50,) and torch.isfinite(proxy).all()
+    assert all(torch.equal(x, y) for x, y in zip(before, src.phi_parameters(), strict=True))
+    assert "f_zz" not in src.slots
+
+
+def test_program_adapter_and_resume_after_an_edit() -> None:
+    card = load_task("halfcheetah", check_env=False)
+    f0 = ProgramFactorSource(example_program("halfcheetah", 0), card)
+    assert f0.phi_names == ["r_vel", "r_upright", "r_stable"] and f0.aux_names == ["r_ctrl"]
+    assert (f0.meta["r_vel"].range_lo, f0.meta["r_vel"].range_hi) == (-15.0, 15.0)
+    rng = np.random.default_rng(0)
+    obs, nxt = rng.normal(size=(2, 17)), rng.normal(size=(2, 17))
+    act = rng.uniform(-1, 1, size=(2, 6))
+    s, n, aux = f0.transition(obs[0], nxt[0], act[0])
+    np.testing.assert_array_equal(s, f0.phi(obs[:1])[0])
+    np.testing.assert_array_equal(n, f0.phi(nxt[:1])[0])
+    np.testing.assert_array_equal(aux, f0.aux(obs[:1], act[:1])[0])
+
+    a, buf = make_hars(f0, obs_dim=17, act_dim=6, card=card)
+    fill_episodes(a, buf, [30, 30], rng)
+    _train(a, buf, rng, 2)
+    a.set_program(ProgramFactorSource(example_program("halfcheetah", 1), card))
+    _train(a, buf, rng, 2)
+    state = a.state_dict()
+    assert state["program"]["factors"] == example_program("halfcheetah", 1).to_json()["factors"]
+
+    b = HarsReward(ProgramFactorSource(example_program("halfcheetah", 0), card), HarsConfig())
+    b.bind(RewardContext(card, 17, 6, 0.99, torch.device("cpu"), buf, 0, Path(".")))
+    b.load_state_dict(state)  # rebuilds the edited program from the checkpoint
+    assert b.phi_names == a.phi_names
+    o = torch.from_numpy(rng.normal(size=(10, 17)).astype(np.float32))
+    assert torch.equal(a.potential(o), b.potential(o))
