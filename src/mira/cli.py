@@ -22,7 +22,7 @@ import torch
 from mira import __version__
 from mira.agents import ALGOS
 from mira.config import TrainConfig, apply_override, from_dict, to_dict
-from mira.errors import DiskFullError, MiraError, UsageError
+from mira.errors import DiskFullError, MiraError, NonFiniteError, UsageError
 from mira.methods import METHODS, build_method
 from mira.tasks.card import builtin_task_names, card_to_dict, load_task
 
@@ -192,6 +192,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     except DiskFullError as exc:
         print(f"mira: {exc}; the run stopped at its last checkpoint and can be resumed with --resume {path}",
               file=sys.stderr)
+        return 1
+    except NonFiniteError as exc:
+        run.set_status("failed", trainer.step, str(exc))
+        print(f"mira: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         run.set_status("interrupted", trainer.step, "interrupted by the user; resume with --resume")

@@ -25,3 +25,7 @@ class CheckpointError(MiraError):
 
 class DiskFullError(MiraError):
     """Writing run state failed for lack of space; the run stops with its last complete state intact."""
+
+
+class NonFiniteError(MiraError):
+    """A loss or the potential became NaN/Inf; the run stops with its last checkpoint intact."""

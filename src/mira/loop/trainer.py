@@ -21,7 +21,7 @@ import torch
 from tqdm import tqdm
 
 from mira.agents import Agent, make_agent
-from mira.errors import CheckpointError
+from mira.errors import CheckpointError, NonFiniteError
 from mira.loop.evaluation import EvalResult, collect_rollout, evaluate
 from mira.loop.hooks import CycleContext, CycleHook
 from mira.loop.rollout import Rollout
@@ -145,6 +145,8 @@ class Trainer:
                 ).to(device)
                 metrics = self.agent.update(batch, self.reward.relabel(batch))
                 metrics.update(self.reward.update(batch, self.step))
+                if not bool(torch.isfinite(torch.cat([v.float().reshape(-1) for v in metrics.values()])).all()):
+                    self._non_finite(metrics)
                 for k, v in metrics.items():
                     sums[k] = sums[k] + v if k in sums else v.clone()
                 n_updates += 1
@@ -202,6 +204,19 @@ class Trainer:
         return TrainResult(self.last_eval, self.step, time.perf_counter() - t_start)
 
     # ------------------------------------------------------------------------------------ helpers
+    def _non_finite(self, metrics: dict[str, torch.Tensor]) -> None:
+        """NaN/Inf in a loss or in Φ: stop with the context, keeping the last checkpoint as the resume point.
+
+        Skipping the update is not an option once an optimiser has stepped on non-finite gradients (the
+        parameters are already poisoned), so the policy is to stop the run cleanly: nothing after the
+        last checkpoint is kept, and the message names the step and every non-finite quantity.
+        """
+        bad = sorted(k for k, v in metrics.items() if not bool(torch.isfinite(v).all()))
+        raise NonFiniteError(
+            f"step {self.step}: non-finite {', '.join(bad)} (episode {self.episode}); the run stopped and its last "
+            f"checkpoint is intact: lower the learning rate or check the reward program, then --resume"
+        )
+
     def _can_sample(self) -> bool:
         if self.reward.needs_complete_episodes:
             return self.buffer.completed_size > 0
