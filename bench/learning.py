@@ -117,7 +117,8 @@ def main() -> None:
     for r in results:
         by_who.setdefault(str(r["who"]), []).append(final_return(r["curve"], args.steps))  # type: ignore[arg-type]
         walls.setdefault(str(r["who"]), []).append(float(r["wall_s"]))  # type: ignore[arg-type]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                            cwd=ROOT).stdout.strip()
     lines = [
         f"HalfCheetah-v5, {args.algo.upper()}, {args.steps} steps, seeds {args.seeds}, eval every {args.eval_every} "
         f"steps x {args.eval_episodes} episodes; figure = mean eval return over the final 10% of training.",

@@ -40,7 +40,8 @@ def test_synth_script_backend_returns_the_scripted_program(tmp_path: Path) -> No
     script = tmp_path / "replies.jsonl"
     script.write_text(json.dumps({"content": "Here you go:\n```json\n" + json.dumps(PROGRAM) + "\n```"}) + "\n")
     out = tmp_path / "p.json"
-    proc = _mira(["factors", "synth", "--task", "halfcheetah", "--llm", f"script:{script}", "--out", str(out)], tmp_path)
+    args = ["factors", "synth", "--task", "halfcheetah", "--llm", f"script:{script}", "--out", str(out)]
+    proc = _mira(args, tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert [f["name"] for f in json.loads(out.read_text())["factors"]] == ["r_speed", "r_effort"]
     check = _mira(["factors", "check", str(out), "--task", "halfcheetah"], tmp_path)

@@ -29,7 +29,7 @@ def test_episode_returns_are_written_next_to_transitions() -> None:
 def test_completed_only_never_samples_the_open_episode() -> None:
     buf = ReplayBuffer(100, 3, 2)
     _fill(buf, [4])
-    for t in range(6):
+    for _ in range(6):
         buf.add(np.zeros(3), np.zeros(2), 0.0, 0.0, np.zeros(3), False, False, 1)
     idx = buf.sample_indices(1000, np.random.default_rng(0), completed_only=True)
     assert set(idx.tolist()) == {0, 1, 2, 3}
@@ -37,7 +37,8 @@ def test_completed_only_never_samples_the_open_episode() -> None:
 
 
 @settings(max_examples=40, deadline=None)
-@given(lengths=st.lists(st.integers(1, 9), min_size=1, max_size=12), capacity=st.integers(3, 30), open_len=st.integers(0, 5))
+@given(lengths=st.lists(st.integers(1, 9), min_size=1, max_size=12), capacity=st.integers(3, 30),
+       open_len=st.integers(0, 5))
 def test_ring_buffer_sampling_and_round_trip(lengths: list[int], capacity: int, open_len: int) -> None:
     buf = ReplayBuffer(capacity, 3, 2)
     _fill(buf, lengths)

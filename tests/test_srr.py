@@ -70,7 +70,8 @@ def test_useful_candidate_is_accepted_with_audit_trail(tmp_path: Path, states: t
     assert "potential decoupled from return" in (tmp_path / "iv" / "request.json").read_text()
 
 
-def test_valid_but_harmful_candidate_is_rejected_with_backoff(tmp_path: Path, states: tuple[np.ndarray, np.ndarray]) -> None:
+def test_valid_but_harmful_candidate_is_rejected_with_backoff(tmp_path: Path,
+                                                             states: tuple[np.ndarray, np.ndarray]) -> None:
     decision = _reframe(tmp_path, [_reply()], -1.0, states)
     assert not decision.accepted and decision.backoff and not decision.failed
     assert decision.program.version == 0

@@ -153,7 +153,7 @@ def _environment_facts() -> dict[str, Any]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from mira.loop.trainer import TrainSetup, Trainer, resolve_device
+    from mira.loop.trainer import Trainer, TrainSetup, resolve_device
     from mira.runio.rundir import RunDir, prepare_run_dir
 
     if args.resume:

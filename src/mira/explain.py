@@ -86,7 +86,8 @@ def explain(run_dir: str | Path) -> str:
             eff = verdicts.get("efficacy")
             ops = "+".join(c.get("operators", [])) or "?"
             if eff:
-                figures = f"AUC {eff['auc']:.3f} (p {eff['auc_p']:.3g}), Spearman {eff['spearman']:.2f}, J_SRR {eff['j_srr']:.3f}"
+                figures = (f"AUC {eff['auc']:.3f} (p {eff['auc_p']:.3g}), Spearman {eff['spearman']:.2f}, "
+                           f"J_SRR {eff['j_srr']:.3f}")
             else:
                 figures = "not measured"
             verdict = verdicts.get("rejected") or "passed every check"

@@ -10,6 +10,7 @@ on by default and every exchange audited in the run directory.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from mira.config import LLMConfig
 from mira.errors import MiraError
@@ -19,6 +20,9 @@ from mira.factors.program import FactorProgram, ProgramParseError
 from mira.llm.base import LLMBackend, LLMRequest
 from mira.llm.factory import make_backend
 from mira.tasks.card import TaskCard
+
+
+Purpose = Literal["lsfs", "srr", "lare"]
 
 
 class SynthesisError(MiraError):
@@ -35,7 +39,7 @@ def backend_from_config(cfg: LLMConfig, default_cache: Path | None, audit_dir: P
     )
 
 
-def lsfs_request(card: TaskCard, action_dim: int, purpose: str = "lsfs") -> LLMRequest:
+def lsfs_request(card: TaskCard, action_dim: int, purpose: Purpose = "lsfs") -> LLMRequest:
     messages = build_lsfs_messages(card, action_dim)
     context = {
         "task": card.name,
@@ -46,7 +50,9 @@ def lsfs_request(card: TaskCard, action_dim: int, purpose: str = "lsfs") -> LLMR
     return LLMRequest(messages=messages, purpose=purpose, temperature=0.0, context=context)
 
 
-def synthesize_program(card: TaskCard, backend: LLMBackend, action_dim: int, purpose: str = "lsfs") -> FactorProgram:
+def synthesize_program(
+    card: TaskCard, backend: LLMBackend, action_dim: int, purpose: Purpose = "lsfs"
+) -> FactorProgram:
     """Ask ``backend`` for the task's initial program; raise :class:`SynthesisError` unless admissible."""
     reply = backend.complete(lsfs_request(card, action_dim, purpose))
     record = getattr(backend, "record_parse_result", None)

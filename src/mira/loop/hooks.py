@@ -11,8 +11,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-import numpy as np
-
 from mira.agents.base import Agent
 from mira.loop.evaluation import EvalResult
 from mira.loop.rollout import Rollout

@@ -6,16 +6,16 @@ from dataclasses import replace
 from pathlib import Path
 
 from mira.config import TrainConfig
-from mira.lsfs import backend_from_config
+from mira.methods import MethodParts
 from mira.loop.outer import MiraOuterLoop, save_program_version
+from mira.lsfs import backend_from_config
 from mira.shaping.method import _action_dim, initial_program
 from mira.tasks.card import TaskCard
 
 MODES = {"mira": "full", "mira-no-mcm": "no-mcm", "mira-no-srr": "no-srr"}
 
 
-def build_mira(config: TrainConfig, card: TaskCard, run_dir: Path, method: str):  # type: ignore[no-untyped-def]
-    from mira.methods import MethodParts
+def build_mira(config: TrainConfig, card: TaskCard, run_dir: Path, method: str) -> MethodParts:
     from mira.shaping.factors import ProgramFactorSource
     from mira.shaping.source import HarsReward
 
@@ -28,4 +28,5 @@ def build_mira(config: TrainConfig, card: TaskCard, run_dir: Path, method: str):
         backend = backend_from_config(config.llm, run_dir / "llm" / "cache", run_dir)
     outer = MiraOuterLoop(replace(config.mira, mode=mode), card, reward, backend, program, _action_dim(card))
     what = {"full": "MCM triggers SRR", "no-mcm": "periodic unguided SRR (no MCM)", "no-srr": "MCM only (no SRR)"}
-    return MethodParts(reward, [outer], f"MIRA ({what[mode]}) over HARS with program v0 ({len(program.factors)} factors)")
+    description = f"MIRA ({what[mode]}) over HARS with program v0 ({len(program.factors)} factors)"
+    return MethodParts(reward, [outer], description)

@@ -165,15 +165,15 @@ class Trainer:
             for hook in s.hooks:
                 if self.step % hook.interval == 0:
                     scalars = hook.on_cycle(self._cycle_context())
-                    for k, v in scalars.items():
-                        tb.add_scalar(f"outer/{k}", v, self.step)
-                    postfix.update({k: f"{v:.3g}" for k, v in scalars.items() if k in ("S", "trigger", "version")})
+                    for name, value in scalars.items():
+                        tb.add_scalar(f"outer/{name}", value, self.step)
+                    postfix.update({n: f"{x:.3g}" for n, x in scalars.items() if n in ("S", "trigger", "version")})
 
             if self.step % s.log_every == 0:
                 now = time.perf_counter()
                 sps = (self.step - step_window) / max(now - t_window, 1e-9)
                 t_window, step_window = now, self.step
-                row_out = {"step": self.step, "episodes": self.episode, "steps_per_s": round(sps, 2),
+                row_out: dict[str, Any] = {"step": self.step, "episodes": self.episode, "steps_per_s": round(sps, 2),
                            "train_return": self.recent_returns[-1] if self.recent_returns else ""}
                 row_out.update({k: float(v) / n_updates for k, v in sums.items()} if n_updates else {})
                 train_log.append(row_out)
@@ -229,8 +229,8 @@ class Trainer:
 
     def _cycle_context(self) -> CycleContext:
         def rollout(episodes: int, seed_base: int) -> Rollout:
-            return collect_rollout(self.agent, self.eval_env, episodes, self.setup.seed + HOLDOUT_SEED_OFFSET + seed_base,
-                                   self.setup.agent_config.gamma)
+            seed = self.setup.seed + HOLDOUT_SEED_OFFSET + seed_base
+            return collect_rollout(self.agent, self.eval_env, episodes, seed, self.setup.agent_config.gamma)
 
         return CycleContext(step=self.step, agent=self.agent, buffer=self.buffer, reward=self.reward, run=self.run_dir,
                             last_eval=self.last_eval, rollout=rollout)

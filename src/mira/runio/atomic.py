@@ -8,6 +8,7 @@ fsync the directory so the rename itself survives a power cut.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -43,18 +44,14 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
         os.replace(tmp_name, target)
         _fsync_dir(target.parent)
     except OSError as exc:
-        try:
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp_name)
-        except FileNotFoundError:
-            pass
         if exc.errno in _NO_SPACE:
             raise DiskFullError(f"no space left writing {target}: {exc.strerror}") from exc
         raise
     except BaseException:
-        try:
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp_name)
-        except FileNotFoundError:
-            pass
         raise
 
 

@@ -69,7 +69,8 @@ def _candidate(i: int, raw: Any, current: FactorProgram) -> Candidate:
     updated = raw.get("updated_factors", [])
     if not isinstance(edits, list) or not isinstance(updated, list):
         return Candidate(i, None, [], [], f"{where}: 'edits' and 'updated_factors' must be lists")
-    operators, pruned = [], set()
+    operators: list[str] = []
+    pruned: set[str] = set()
     for j, edit in enumerate(edits):
         if not isinstance(edit, dict) or edit.get("operator") not in ALLOWED_OPERATORS:
             op = edit.get("operator") if isinstance(edit, dict) else edit

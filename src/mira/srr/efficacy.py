@@ -71,7 +71,9 @@ def spearman(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.mean((rx - rx.mean()) * (ry - ry.mean())) / (sx * sy))
 
 
-def _perm_spearman_pvalue(x: np.ndarray, y: np.ndarray, observed: float, n_perm: int, rng: np.random.Generator) -> float:
+def _perm_spearman_pvalue(
+    x: np.ndarray, y: np.ndarray, observed: float, n_perm: int, rng: np.random.Generator
+) -> float:
     rx, ry = rankdata(x), rankdata(y)
     rx = (rx - rx.mean()) / (rx.std() + 1e-12)
     ry = (ry - ry.mean()) / (ry.std() + 1e-12)

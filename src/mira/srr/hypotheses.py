@@ -55,11 +55,14 @@ class Hypothesis:
         return {"operator": self.operator, "score": round(self.score, 4), "because": self.because}
 
 
-def rule_hypotheses(d: dict[str, float], return_is_poor: bool, z_low: float = -1.0, z_high: float = 1.0) -> list[Hypothesis]:
+def rule_hypotheses(
+    d: dict[str, float], return_is_poor: bool, z_low: float = -1.0, z_high: float = 1.0
+) -> list[Hypothesis]:
     """The evidence-to-operator rules of section 4.4.2 on a standardised diagnostic vector."""
     out: list[Hypothesis] = []
     if d.get("pvc", 0.0) <= z_low:
-        out.append(Hypothesis("Gate", 1.0, "low/negative PVC: potential decoupled from return; gate the proxy on posture"))
+        out.append(Hypothesis("Gate", 1.0,
+                              "low/negative PVC: potential decoupled from return; gate the proxy on posture"))
         out.append(Hypothesis("Refactor", 0.6, "low PVC: embed physical consistency in the proxy"))
     if d.get("rpe", 0.0) >= z_high and return_is_poor:
         out.append(Hypothesis("Add", 1.0, "high RPE plateau with poor return: the factors miss information"))

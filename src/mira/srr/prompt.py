@@ -82,11 +82,13 @@ def _diagnostics_block(ev: Evidence, hypotheses: list[Hypothesis]) -> str:
         f"  raw: [{raw}]",
         f"  anomaly_score: {ev.score if ev.score is None else round(ev.score, 4)}"
         f" (threshold {ev.threshold if ev.threshold is None else round(ev.threshold, 4)})",
-        f"  direction_to_healthy (KDE gradient): {json.dumps({k.upper(): round(v, 4) for k, v in ev.gradient.items()})}",
+        "  direction_to_healthy (KDE gradient): "
+        + json.dumps({k.upper(): round(v, 4) for k, v in ev.gradient.items()}),
         "  top_contributors:",
     ]
     for c in ev.contributors:
-        lines.append(f"    - name: {str(c['metric']).upper()}\n      value: {c['value']:.3f}\n      comment: \"{c['reading']}\"")
+        lines.append(f"    - name: {str(c['metric']).upper()}\n      value: {c['value']:.3f}\n"
+                     f"      comment: \"{c['reading']}\"")
     lines.append(f"  recent_return: {ev.recent_return:.4g} (baseline {ev.baseline_return:.4g})")
     if ev.stagnation_band:
         b = ev.stagnation_band

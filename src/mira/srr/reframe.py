@@ -112,7 +112,8 @@ class Reframer:
             direction = np.array([evidence.gradient.get(m, 0.0) for m in METRICS])
         shortlist: list[tuple[float, Candidate]] = []
         for cand in candidates:
-            passed, j_srr = self._validate(cand, program, eval_obs, sandbox_obs, sandbox_actions, eval_values, proxy,
+            passed, j_srr = self._validate(cand, program, eval_obs, sandbox_obs, sandbox_actions, eval_values,
+                                           proxy,
                                            direction, seed)
             if passed and j_srr is not None:
                 shortlist.append((j_srr, cand))

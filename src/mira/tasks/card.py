@@ -135,7 +135,7 @@ class StateView:
     def __getattr__(self, name: str) -> np.ndarray:
         values = object.__getattribute__(self, "_values")
         try:
-            return values[name]  # type: ignore[no-any-return]
+            return values[name]
         except KeyError:
             raise AttributeError(f"the state has no feature {name!r}") from None
 

@@ -1,0 +1,142 @@
+"""Fault injection: SIGKILL at fail points and at random instants, full disks, failing LLM endpoints.
+
+Run alone with ``pytest -m faults``; CI runs it with everything else.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from chat_server import ChatServer, hang, raw, reply, status
+from mira.runio.checkpoint import load_latest
+from mira.runio.csvlog import read_csv
+
+pytestmark = [pytest.mark.faults, pytest.mark.slow]
+
+STEPS = "1600"
+ARGS = ["train", "--task", "halfcheetah", "--method", "mira-no-mcm", "--steps", STEPS, "--seed", "1",
+        "--learning-starts", "300", "--batch-size", "32", "--hidden", "16,16", "--eval-every", "400",
+        "--eval-episodes", "1", "--max-episode-steps", "100", "--checkpoint-every", "100", "--log-every", "200",
+        "--threads", "1", "--quiet", "--set", "mira.mcm.delta_t=400", "--set", "mira.periodic_cycles=1",
+        "--set", "mira.holdout_episodes=1", "--set", "mira.srr.permutations=100"]
+
+
+def _run(args: list[str], failpoints: str = "", kill_after: float | None = None,
+         cwd: Path | None = None) -> int:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MIRA_FAILPOINTS": failpoints}
+    proc = subprocess.Popen([sys.executable, "-m", "mira.cli", *args], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, cwd=cwd)
+    if kill_after is not None:
+        try:
+            proc.wait(timeout=kill_after)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=600)
+    return proc.returncode
+
+
+def _outcome(run: Path) -> dict[str, object]:
+    evals = [(r["step"], r["return_mean"]) for r in read_csv(run / "eval.csv")]
+    diag = [(r["step"], r["raw_pvc"], r["score"], r["version"]) for r in read_csv(run / "diagnostics.csv")]
+    programs = {p.name: p.read_text() for p in sorted((run / "programs").glob("v*.json"))}
+    decisions = {p.parent.name: json.loads(p.read_text())["accepted"]
+                 for p in sorted((run / "interventions").glob("*/decision.json"))}
+    return {"eval": evals, "diagnostics": diag, "programs": programs, "decisions": decisions}
+
+
+def test_kills_at_fail_points_and_random_instants_lose_nothing(tmp_path: Path) -> None:
+    ref = tmp_path / "ref"
+    assert _run([*ARGS, "--out", str(ref)]) == 0
+    expected = _outcome(ref)
+    assert expected["eval"] and expected["diagnostics"]
+
+    run = tmp_path / "run"
+    points = ["checkpoint.after_payload:3", "checkpoint.before_payload:5", "checkpoint.after_manifest:4",
+              "srr.before_call:1", "srr.after_reply:2", "program.saved:1", "program.applied:1",
+              "checkpoint.after_payload:9", "srr.after_reply:1", "checkpoint.after_manifest:11"]
+    rng = random.Random(7)
+    kills = 0
+    first = True
+    schedule = [(p, None) for p in points] + [("", rng.uniform(4.0, 25.0)) for _ in range(12)]
+    for failpoint, delay in schedule:
+        args = [*ARGS, "--out", str(run)] if first else ["train", "--resume", str(run), "--quiet"]
+        code = _run(args, failpoint, delay)
+        if code == 0:
+            break  # finished before this fault could hit
+        assert code == -signal.SIGKILL, f"unexpected exit {code}"
+        kills += 1
+        first = first and not (run / "config.json").exists()
+    assert kills >= 20
+    while True:  # finish the run
+        code = _run(["train", "--resume", str(run), "--quiet"])
+        if code == 0:
+            break
+    assert _outcome(run) == expected
+
+
+def test_disk_full_stops_cleanly_and_resumes(tmp_path: Path) -> None:
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1500k", "tmpfs", str(mnt)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here (needs root); the RLIMIT_FSIZE variant still runs")
+    try:
+        run = mnt / "run"
+        args = [*ARGS, "--method", "dense", "--out", str(run), "--hidden", "64,64"]
+        proc = subprocess.run([sys.executable, "-m", "mira.cli", *args], capture_output=True, text=True,
+                              timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+        assert proc.returncode == 1, proc.stderr[-2000:]
+        assert "no space left" in proc.stderr and "--resume" in proc.stderr
+        assert "Traceback" not in proc.stderr
+        found = load_latest(run / "checkpoints")
+        assert found is not None  # the last complete checkpoint is intact
+        moved = tmp_path / "run"
+        shutil.copytree(run, moved)
+    finally:
+        subprocess.run(["umount", str(mnt)], check=False)
+    assert _run(["train", "--resume", str(moved), "--quiet"]) == 0
+    assert read_csv(moved / "eval.csv")[-1]["step"] == STEPS
+
+
+def test_file_size_limit_is_reported_as_disk_full(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    code = (
+        "import resource, signal, sys; signal.signal(signal.SIGXFSZ, signal.SIG_IGN);"
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, 300_000));"
+        "from mira.cli import main; sys.exit(main(sys.argv[1:]))"
+    )
+    args = [*ARGS, "--method", "dense", "--out", str(run), "--hidden", "64,64"]
+    proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert "no space left" in proc.stderr and "Traceback" not in proc.stderr
+    assert _run(["train", "--resume", str(run), "--quiet"]) == 0
+
+
+@pytest.mark.parametrize("behaviours", [
+    [status(503)] * 10,                      # endpoint down (5xx until the retries run out)
+    [status(429, headers={"Retry-After": "0"})] * 10,  # rate-limited throughout
+    [raw(b"this is not JSON at all")] * 10,  # garbage on the wire
+    [reply("I think you should gate the velocity.")] * 10,  # prose, no JSON
+    [hang(5.0)] * 10,                        # slow: every request times out
+])
+def test_llm_faults_never_stop_training(tmp_path: Path, behaviours: list[object]) -> None:
+    program = Path(__file__).parents[1] / "src" / "mira" / "examples" / "halfcheetah_f0.json"
+    with ChatServer() as server:
+        server.push(*behaviours)  # type: ignore[arg-type]
+        run = tmp_path / "run"
+        args = [*ARGS, "--steps", "800", "--out", str(run), "--program", str(program), "--llm", "openai:m",
+                "--base-url", server.url, "--set", "llm.max_retries=1", "--set", "llm.timeout_s=1"]
+        env_code = _run(args)
+    assert env_code == 0
+    decisions = [json.loads(p.read_text()) for p in sorted((run / "interventions").glob("*/decision.json"))]
+    assert len(decisions) == 2 and all(not d["accepted"] and d["failed"] for d in decisions)
+    assert read_csv(run / "eval.csv")[-1]["step"] == "800"
