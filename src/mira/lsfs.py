@@ -21,7 +21,6 @@ from mira.llm.base import LLMBackend, LLMRequest
 from mira.llm.factory import make_backend
 from mira.tasks.card import TaskCard
 
-
 Purpose = Literal["lsfs", "srr", "lare"]
 
 

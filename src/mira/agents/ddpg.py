@@ -1,4 +1,10 @@
-"""Deep Deterministic Policy Gradient (Lillicrap et al., 2016) with Gaussian action noise."""
+"""Deep Deterministic Policy Gradient (Lillicrap et al., 2016) with Gaussian action noise.
+
+Like SAC, the update runs the networks through :class:`~mira.agents.networks.EnsembleQKernels` and
+:class:`~mira.agents.networks.MLPKernels` (explicit backward formulas on reused buffers) instead of
+autograd; only a reward that requires grad is backpropagated by autograd. Same arithmetic and result
+as the plain autograd version up to float rounding (see bench/RESULTS.md).
+"""
 
 from __future__ import annotations
 
@@ -10,7 +16,15 @@ import numpy as np
 import torch
 
 from mira.agents.base import AgentConfig, PolicyStats
-from mira.agents.networks import DeterministicActor, EnsembleQ, make_adam, polyak_update
+from mira.agents.networks import (
+    AdamStepper,
+    DeterministicActor,
+    EnsembleQ,
+    EnsembleQKernels,
+    MLPKernels,
+    make_adam,
+    relu_mlp_1d,
+)
 from mira.replay import Batch
 
 
@@ -20,6 +34,7 @@ class DDPG:
     def __init__(self, obs_dim: int, act_dim: int, config: AgentConfig, device: torch.device) -> None:
         self.config = config
         self.device = device
+        self.obs_dim = obs_dim
         self.act_dim = act_dim
         self.actor = DeterministicActor(obs_dim, act_dim, config.hidden).to(device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
@@ -30,39 +45,70 @@ class DDPG:
         self.updates = 0
         # Exploration noise comes from torch's generator so one seed fixes the whole run.
         self._noise_std = config.exploration_noise
+        self._q_kernels = EnsembleQKernels(self.critic)
+        self._pi_kernels = MLPKernels(self.actor.params())
+        self._critic_step = AdamStepper(self.critic_opt)
+        self._actor_step = AdamStepper(self.actor_opt)
+        self._bind_params()
+
+    def _bind_params(self) -> None:
+        self._actor_params = self.actor.params()
+        self._critic_params = self.critic.params()
+        self._actor_target_params = self.actor_target.params()
+        self._critic_target_params = self.critic_target.params()
+        self._actor_grads = [torch.zeros_like(p) for p in self._actor_params]
+        self._critic_grads = [torch.zeros_like(p) for p in self._critic_params]
+        self._online = self._actor_params + self._critic_params
+        self._targets = self._actor_target_params + self._critic_target_params
 
     @torch.inference_mode()
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
-        x = torch.as_tensor(obs, dtype=torch.float32, device=self.device).unsqueeze(0)
-        action = self.actor(x)[0]
+        x = torch.as_tensor(obs, dtype=torch.float32, device=self.device)
+        action = torch.tanh(relu_mlp_1d(self._actor_params, x))
         if not deterministic:
-            action = (action + self._noise_std * torch.randn_like(action)).clamp(-1.0, 1.0)
+            action = (action + self._noise_std * torch.randn_like(action)).clamp_(-1.0, 1.0)
         return action.cpu().numpy()
 
     def update(self, batch: Batch, reward: torch.Tensor) -> dict[str, torch.Tensor]:
         cfg = self.config
+        q_k, pi_k = self._q_kernels, self._pi_kernels
+        critic, actor = self._critic_params, self._actor_params
+        obs = batch.obs
+        n = obs.shape[0]
         with torch.no_grad():
-            q_next = self.critic_target(batch.next_obs, self.actor_target(batch.next_obs))[0]
-        target = reward + cfg.gamma * (1.0 - batch.terminated) * q_next
-        q = self.critic(batch.obs, batch.action)[0]
-        critic_loss = (q - target).pow(2).mean()
-        self.critic_opt.zero_grad(set_to_none=True)
-        critic_loss.backward()
-        self.critic_opt.step()
+            next_action = torch.tanh(pi_k.forward(self._actor_target_params, batch.next_obs))
+            q_next = q_k.forward(self._critic_target_params, torch.cat((batch.next_obs, next_action), -1))[0]
+            target = reward.detach() + cfg.gamma * (1.0 - batch.terminated) * q_next
+            # Loss: mean squared TD error; dL/dq = 2 (q - target) / B.
+            q = q_k.forward(critic, torch.cat((obs, batch.action), -1))
+            q_mean = q.mean()
+            td = q - target
+            critic_loss = td.square().mean()
+            dq = td.mul_(2.0 / n)
+            q_k.backward(critic, dq, self._critic_grads)
+            for p, g in zip(critic, self._critic_grads, strict=True):
+                p.grad = g
+        if reward.requires_grad:
+            reward.backward(dq[0].neg())  # dL/dtarget, for a reward that carries gradients
+        self._critic_step.step()
         self.updates += 1
-        metrics = {"critic_loss": critic_loss.detach(), "q_mean": q.detach().mean()}
+        metrics = {"critic_loss": critic_loss, "q_mean": q_mean}
         if self.updates % cfg.policy_delay:
             return metrics
 
-        self.critic.requires_grad_(False)
-        actor_loss = -self.critic(batch.obs, self.actor(batch.obs))[0].mean()
-        self.actor_opt.zero_grad(set_to_none=True)
-        actor_loss.backward()
-        self.actor_opt.step()
-        self.critic.requires_grad_(True)
-        polyak_update(self.actor, self.actor_target, cfg.tau)
-        polyak_update(self.critic, self.critic_target, cfg.tau)
-        metrics["actor_loss"] = actor_loss.detach()
+        with torch.no_grad():
+            # Actor: maximise Q(s, pi(s)); the critic gets no gradient from this loss.
+            action = torch.tanh(pi_k.forward(actor, obs))
+            actor_loss = q_k.forward(critic, torch.cat((obs, action), -1))[0].mean().neg()
+            d_action = q_k.input_grad_of_min(critic, None, -1.0 / n, slice(self.obs_dim, None))
+            g_out = torch.addcmul(d_action, d_action, action.square(), value=-1.0)  # through tanh
+            pi_k.backward(actor, g_out, self._actor_grads)
+            for p, g in zip(actor, self._actor_grads, strict=True):
+                p.grad = g
+        self._actor_step.step()
+        with torch.no_grad():
+            torch._foreach_lerp_(self._targets, self._online, cfg.tau)
+        metrics["actor_loss"] = actor_loss
         return metrics
 
     @torch.no_grad()
@@ -106,3 +152,4 @@ class DDPG:
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.updates = state["updates"]
+        self._bind_params()

@@ -20,6 +20,7 @@ Performance notes (measured on a 2-core AVX2 CPU, batch 256, 2x256 ReLU nets; se
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 
@@ -66,7 +67,7 @@ class EnsembleQ(nn.Module):
         super().__init__()
         self.ensemble = ensemble
         sizes = (obs_dim + act_dim, *hidden, 1)
-        self.layers = nn.ModuleList(EnsembleLinear(ensemble, i, o) for i, o in zip(sizes[:-1], sizes[1:], strict=True))
+        self.layers = nn.ModuleList(EnsembleLinear(ensemble, i, o) for i, o in itertools.pairwise(sizes))
 
     def params(self) -> list[torch.Tensor]:
         """``[W_1, b_1, ..., W_L, b_L]``, the order :func:`ensemble_q` and ``forward(params=)`` take."""
@@ -81,6 +82,132 @@ class EnsembleQ(nn.Module):
         parameters (e.g. detached ones, so that no gradient reaches the critic)."""
         x = torch.cat((obs, action), dim=-1)
         return ensemble_q(self.params() if params is None else params, x, self.ensemble)
+
+
+class EnsembleQKernels:
+    """Autograd-free training passes of an :class:`EnsembleQ`, on activation and gradient buffers
+    that are allocated once per batch size and reused.
+
+    The critics are the large part of an update (``[E, B, H]`` activations), and running them through
+    autograd costs a graph node, a fresh allocation (on CPU, page faults) and a Python dispatch for
+    every step of every layer. These kernels do the same arithmetic with explicit backward formulas:
+
+    * :meth:`forward` runs all members on ``x [B, in]`` and keeps the post-ReLU activations;
+    * :meth:`backward` takes ``dL/dq [E, B]`` and writes the parameter gradients into ``grads``
+      (the same values autograd would produce) and/or returns ``dL/dx[:, cols]``.
+
+    Every call must run under ``torch.no_grad()``; results live in the buffers until the next call.
+    """
+
+    def __init__(self, critic: EnsembleQ) -> None:
+        self.ensemble = critic.ensemble
+        self.widths = [layer.weight.shape[2] for layer in critic.layers]
+        self._bufs: dict[tuple[int, torch.dtype, torch.device], tuple[list[torch.Tensor], list[torch.Tensor],
+                                                                      torch.Tensor]] = {}
+        self._x: torch.Tensor | None = None
+        self._cur: tuple[list[torch.Tensor], list[torch.Tensor], torch.Tensor] | None = None
+
+    def _buffers(self, x: torch.Tensor) -> tuple[list[torch.Tensor], list[torch.Tensor], torch.Tensor]:
+        key = (x.shape[0], x.dtype, x.device)
+        bufs = self._bufs.get(key)
+        if bufs is None:
+            e, b = self.ensemble, x.shape[0]
+            hidden = self.widths[:-1]
+            bufs = ([x.new_empty(e, b, w) for w in hidden], [x.new_empty(e, b, w) for w in hidden],
+                    x.new_empty(e, b))
+            if len(self._bufs) >= 4:  # a few batch sizes at a time
+                self._bufs.clear()
+            self._bufs[key] = bufs
+        return bufs
+
+    def forward(self, params: Sequence[torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+        """``Q_e(x)`` for every member, ``[E, B]`` (a buffer, overwritten by the next forward)."""
+        bufs = self._cur = self._buffers(x)
+        acts, _, q = bufs
+        e = self.ensemble
+        h = x.expand(e, -1, -1)
+        last = len(params) - 2
+        for i in range(0, last, 2):
+            h = torch.baddbmm(params[i + 1], h, params[i], out=acts[i // 2]).relu_()
+        w, b = params[last], params[last + 1]
+        for m in range(e):  # width-1 output: one GEMV per member (MKL's batched GEMM is slow at N=1)
+            torch.mv(h[m], w[m, :, 0], out=q[m])
+        q += b.view(e, 1)
+        self._x = x
+        return q
+
+    def backward(self, params: Sequence[torch.Tensor], dq: torch.Tensor, grads: Sequence[torch.Tensor] | None,
+                 input_cols: slice | None = None) -> torch.Tensor | None:
+        """Backpropagate ``dq = dL/dq [E, B]`` through the last :meth:`forward`.
+
+        ``grads`` (same shapes as ``params``) receive ``dL/dparams``; with ``input_cols`` the return
+        value is ``dL/dx[:, input_cols]`` summed over members, ``[B, cols]``.
+        """
+        x, bufs = self._x, self._cur
+        assert x is not None and bufs is not None, "backward() before forward()"
+        acts, gbufs, _ = bufs
+        e = self.ensemble
+        last = len(params) - 2
+        h = acts[-1]
+        if grads is not None:
+            gw = grads[last]
+            for m in range(e):
+                torch.mv(h[m].t(), dq[m], out=gw[m, :, 0])
+            torch.sum(dq, 1, out=grads[last + 1].view(e))
+        g = torch.mul(dq.unsqueeze(-1), params[last].transpose(1, 2), out=gbufs[-1])
+        torch.ops.aten.threshold_backward.grad_input(g, h, 0, grad_input=g)
+        for i in range(last - 2, -1, -2):
+            layer = i // 2
+            inp = acts[layer - 1] if layer > 0 else x.expand(e, -1, -1)
+            if grads is not None:
+                torch.bmm(inp.transpose(1, 2), g, out=grads[i])
+                torch.sum(g, 1, keepdim=True, out=grads[i + 1])
+            if layer > 0:
+                g_in = torch.bmm(g, params[i].transpose(1, 2), out=gbufs[layer - 1])
+                g = torch.ops.aten.threshold_backward.grad_input(g_in, inp, 0, grad_input=g_in)
+            elif input_cols is not None:
+                return torch.bmm(g, params[0][:, input_cols, :].transpose(1, 2)).sum(0)
+        return None
+
+
+    def input_grad_of_min(self, params: Sequence[torch.Tensor], argmin: torch.Tensor | None, scale: float,
+                          input_cols: slice) -> torch.Tensor:
+        """``dL/dx[:, input_cols]`` for ``L = scale * sum_b q[argmin_b, b]`` (``argmin [B]``: the
+        member each row's minimum came from; ``None`` for a single member), after :meth:`forward`.
+
+        Same result as :meth:`backward` with ``dq`` one-hot on the argmin (the actor's loss through
+        ``min_e Q_e``), but each member only backpropagates the rows where it was the minimum: half
+        the matmul work of the full backward for twin critics.
+        """
+        x, bufs = self._x, self._cur
+        assert x is not None and bufs is not None, "input_grad_of_min() before forward()"
+        acts = bufs[0]
+        last = len(params) - 2
+        w0 = params[0][:, input_cols, :]
+        if argmin is None and self.ensemble != 1:
+            raise ValueError("argmin is required with more than one member")
+        dx = x.new_zeros(x.shape[0], w0.shape[1]) if argmin is not None else None
+        for m in range(self.ensemble):
+            idx = None if argmin is None else (argmin == m).nonzero().squeeze(1)
+            if idx is not None and idx.numel() == 0:
+                continue
+
+            def rows(t: torch.Tensor, idx: torch.Tensor | None = idx) -> torch.Tensor:
+                return t if idx is None else t.index_select(0, idx)
+
+            h = rows(acts[-1][m])
+            g = torch.ops.aten.threshold_backward((params[last][m, :, 0] * scale).expand_as(h), h, 0)
+            for i in range(last - 2, 0, -2):
+                inp = rows(acts[i // 2 - 1][m])
+                g = torch.mm(g, params[i][m].t())
+                g = torch.ops.aten.threshold_backward.grad_input(g, inp, 0, grad_input=g)
+            g = torch.mm(g, w0[m].t())
+            if idx is None:
+                return g
+            assert dx is not None
+            dx.index_copy_(0, idx, g)
+        assert dx is not None
+        return dx
 
 
 def mlp(in_dim: int, hidden: tuple[int, ...], out_dim: int) -> nn.Sequential:
@@ -103,12 +230,77 @@ def relu_mlp(params: Sequence[torch.Tensor], x: torch.Tensor) -> torch.Tensor:
     return F.linear(x, params[last], params[last + 1])
 
 
+def relu_mlp_1d(params: Sequence[torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+    """:func:`relu_mlp` on one input vector ``x [in]`` (matrix-vector products: acting, one step at
+    a time, is latency-bound)."""
+    last = len(params) - 2
+    for i in range(0, last, 2):
+        x = torch.addmv(params[i + 1], params[i], x).relu_()
+    return torch.addmv(params[last + 1], params[last], x)
+
+
 def _linear_params(modules: Sequence[nn.Module]) -> list[torch.Tensor]:
     out: list[torch.Tensor] = []
     for m in modules:
         if isinstance(m, nn.Linear):
             out += (m.weight, m.bias)
     return out
+
+
+class MLPKernels:
+    """Autograd-free training passes of a ReLU MLP given as ``nn.Linear`` parameters
+    ``[W_1, b_1, ..., W_L, b_L]`` (``W_l: [out, in]``), on activation buffers reused across calls
+    (the actor's counterpart of :class:`EnsembleQKernels`; same rules: run under ``torch.no_grad()``,
+    results live until the next :meth:`forward`)."""
+
+    def __init__(self, params: Sequence[torch.Tensor]) -> None:
+        self.widths = [params[i].shape[0] for i in range(0, len(params), 2)]
+        self._bufs: dict[tuple[int, torch.dtype, torch.device], tuple[list[torch.Tensor], list[torch.Tensor]]] = {}
+        self._x: torch.Tensor | None = None
+        self._cur: tuple[list[torch.Tensor], list[torch.Tensor]] | None = None
+
+    def _buffers(self, x: torch.Tensor) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+        key = (x.shape[0], x.dtype, x.device)
+        bufs = self._bufs.get(key)
+        if bufs is None:
+            b = x.shape[0]
+            bufs = ([x.new_empty(b, w) for w in self.widths], [x.new_empty(b, w) for w in self.widths])
+            if len(self._bufs) >= 4:  # a few batch sizes at a time
+                self._bufs.clear()
+            self._bufs[key] = bufs
+        return bufs
+
+    def forward(self, params: Sequence[torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+        """The MLP's (pre-activation) output ``[B, out]``, a buffer."""
+        bufs = self._cur = self._buffers(x)
+        acts = bufs[0]
+        self._x = x
+        h = x
+        last = len(params) - 2
+        for i in range(0, last, 2):
+            h = torch.addmm(params[i + 1], h, params[i].t(), out=acts[i // 2]).relu_()
+        return torch.addmm(params[last + 1], h, params[last].t(), out=acts[-1])
+
+    def backward(self, params: Sequence[torch.Tensor], g_out: torch.Tensor, grads: Sequence[torch.Tensor],
+                 rows: slice | None = None) -> None:
+        """Write ``dL/dparams`` into ``grads`` given ``g_out = dL/doutput`` of the last forward (the
+        input gets no gradient). With ``rows``, only those rows of the last forward's batch enter the
+        loss (``g_out`` has just those rows)."""
+        x, bufs = self._x, self._cur
+        assert x is not None and bufs is not None, "backward() before forward()"
+        acts, gbufs = bufs
+        if rows is not None:
+            x, acts = x[rows], [a[rows] for a in acts]
+        n = x.shape[0]
+        g = g_out
+        for i in range(len(params) - 2, -1, -2):
+            layer = i // 2
+            inp = acts[layer - 1] if layer > 0 else x
+            torch.mm(g.t(), inp, out=grads[i])
+            torch.sum(g, 0, out=grads[i + 1])
+            if layer > 0:
+                g_in = torch.mm(g, params[i], out=gbufs[layer - 1][:n])
+                g = torch.ops.aten.threshold_backward.grad_input(g_in, inp, 0, grad_input=g_in)
 
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
@@ -162,6 +354,36 @@ class SquashedGaussianActor(nn.Module):
     def deterministic(self, obs: torch.Tensor) -> torch.Tensor:
         mean, _ = self.distribution(obs)
         return torch.tanh(mean)
+
+
+def squashed_gaussian_forward(out: torch.Tensor, noise: torch.Tensor
+                              ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, ...]]:
+    """:meth:`SquashedGaussianActor.sample` from the network's output ``[B, 2A]`` and the standard
+    normal ``noise [B, A]``: ``(action, log_prob, saved)``, ``saved`` being what
+    :func:`squashed_gaussian_backward` needs. Autograd-free (run under ``torch.no_grad()``)."""
+    mean, raw = out.chunk(2, dim=-1)
+    t = torch.tanh(raw)
+    log_std = t * _LOG_STD_HALF + _LOG_STD_MID
+    std = log_std.exp()
+    pre = torch.addcmul(mean, std, noise)
+    action = torch.tanh(pre)
+    u = F.softplus(-2.0 * pre).add_(pre).sub_(_LOG2)
+    log_prob = u.mul_(2.0).sub_(noise.square().mul_(0.5)).sub_(log_std).sum(-1).sub_(mean.shape[-1] * _HALF_LOG_2PI)
+    return action, log_prob, (t, std, noise, action)
+
+
+def squashed_gaussian_backward(saved: tuple[torch.Tensor, ...], g_action: torch.Tensor,
+                               g_log_prob: torch.Tensor) -> torch.Tensor:
+    """``dL/d out [B, 2A]`` of :func:`squashed_gaussian_forward` given ``dL/daction [B, A]`` and
+    ``dL/dlog_prob`` (``[B]`` or a scalar broadcast over rows). With ``u = softplus(-2 pre) + pre -
+    log 2``, ``du/dpre = tanh(pre)``, so ``dL/dpre = g_a (1 - a^2) + 2 g_lp a``; then ``dL/dmean =
+    dL/dpre`` and ``dL/draw = (dL/dpre * std * noise - g_lp) * (MAX - MIN) / 2 * (1 - tanh(raw)^2)``."""
+    t, std, noise, action = saved
+    g_lp = g_log_prob.unsqueeze(-1) if g_log_prob.dim() == 1 else g_log_prob
+    g_pre = torch.addcmul(g_action, g_action, action.square(), value=-1.0).add_(action * (2.0 * g_lp))
+    one_minus_t2 = torch.addcmul(t.new_ones(()), t, t, value=-1.0)  # d tanh(raw) / d raw
+    g_raw = (g_pre * std).mul_(noise).sub_(g_lp).mul_(one_minus_t2).mul_(_LOG_STD_HALF)
+    return torch.cat((g_pre, g_raw), dim=-1)
 
 
 class DeterministicActor(nn.Module):

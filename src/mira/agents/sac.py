@@ -4,6 +4,12 @@ The critics are one ensemble module (one batched matmul per layer for both). The
 critic target is whatever the reward source gave: for HARS it may carry gradients into the potential,
 which is how the critic loss reaches (phi, varphi) in the joint objective; SAC itself only steps its
 own optimisers.
+
+The update runs the networks through :class:`~mira.agents.networks.EnsembleQKernels` and
+:class:`~mira.agents.networks.MLPKernels` (explicit backward formulas on reused buffers) instead of
+autograd; only a reward that requires grad is backpropagated by autograd. The arithmetic, the order
+of the random draws and the result are those of the plain autograd version up to float rounding
+(see bench/RESULTS.md for how that was checked and what it buys).
 """
 
 from __future__ import annotations
@@ -14,10 +20,21 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.nn import functional as F
 
 from mira.agents.base import AgentConfig, PolicyStats
-from mira.agents.networks import AdamStepper, EnsembleQ, SquashedGaussianActor, make_adam, polyak_update
+from mira.agents.networks import (
+    _LOG_STD_HALF,
+    _LOG_STD_MID,
+    AdamStepper,
+    EnsembleQ,
+    EnsembleQKernels,
+    MLPKernels,
+    SquashedGaussianActor,
+    make_adam,
+    relu_mlp_1d,
+    squashed_gaussian_backward,
+    squashed_gaussian_forward,
+)
 from mira.replay import Batch
 
 
@@ -27,6 +44,7 @@ class SAC:
     def __init__(self, obs_dim: int, act_dim: int, config: AgentConfig, device: torch.device) -> None:
         self.config = config
         self.device = device
+        self.obs_dim = obs_dim
         self.act_dim = act_dim
         self.actor = SquashedGaussianActor(obs_dim, act_dim, config.hidden).to(device)
         self.critic = EnsembleQ(2, obs_dim, act_dim, config.hidden).to(device)
@@ -36,56 +54,97 @@ class SAC:
         self.actor_opt = make_adam(list(self.actor.parameters()), config.lr)
         self.critic_opt = make_adam(list(self.critic.parameters()), config.lr)
         self.alpha_opt = make_adam([self.log_alpha], config.lr)
+        self.updates = 0
+        self._q_kernels = EnsembleQKernels(self.critic)
+        self._pi_kernels = MLPKernels(self.actor.params())
         self._critic_step = AdamStepper(self.critic_opt)
         self._actor_step = AdamStepper(self.actor_opt)
         self._actor_alpha_step = AdamStepper(self.actor_opt, self.alpha_opt)
-        self.updates = 0
+        self._bind_params()
+
+    def _bind_params(self) -> None:
+        self._critic_params = self.critic.params()
+        self._target_params = self.critic_target.params()
+        self._critic_grads = [torch.zeros_like(p) for p in self._critic_params]
+        self._actor_params = self.actor.params()
+        self._actor_grads = [torch.zeros_like(p) for p in self._actor_params]
 
     @torch.inference_mode()
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
-        x = torch.as_tensor(obs, dtype=torch.float32, device=self.device).unsqueeze(0)
-        action = self.actor.deterministic(x) if deterministic else self.actor.sample(x)[0]
-        return action[0].cpu().numpy()
+        # actor.sample / actor.deterministic without the log-probability (same draws, same action).
+        x = torch.as_tensor(obs, dtype=torch.float32, device=self.device)
+        mean, raw = relu_mlp_1d(self._actor_params, x).chunk(2)
+        if deterministic:
+            return torch.tanh(mean).cpu().numpy()
+        std = torch.tanh(raw).mul_(_LOG_STD_HALF).add_(_LOG_STD_MID).exp_()
+        return torch.tanh(torch.addcmul(mean, std, torch.randn_like(mean))).cpu().numpy()
 
     def update(self, batch: Batch, reward: torch.Tensor) -> dict[str, torch.Tensor]:
         cfg = self.config
+        q_k, pi_k = self._q_kernels, self._pi_kernels
+        critic, actor = self._critic_params, self._actor_params
+        obs = batch.obs
+        n = obs.shape[0]
         alpha = self.log_alpha.detach().exp()
-        critic_params = self.critic.params()
 
-        # Critic: soft Bellman target from the target critics; truncation is not a terminal.
+        # When the actor is updated too, its forward pass on next_obs (target) and on obs (actor loss)
+        # is one pass over both: the actor does not change in between, and the noise is drawn in the
+        # same order as two separate samples would draw it.
+        actor_step = (self.updates + 1) % cfg.policy_delay == 0
         with torch.no_grad():
-            next_action, next_logp = self.actor.sample(batch.next_obs)
-            q_next = self.critic_target(batch.next_obs, next_action).min(0).values - alpha * next_logp
-            bootstrap = cfg.gamma * (1.0 - batch.terminated) * q_next
-        # Outside no_grad: a reward that requires grad (HARS's joint mode) gets the critic loss's gradient.
-        target = reward + bootstrap
-        q = self.critic(batch.obs, batch.action, critic_params)
-        # sum over critics of the mean squared TD error (mse_loss sums [E, B], then / B).
-        critic_loss = F.mse_loss(q, target.expand_as(q), reduction="sum") / q.shape[1]
-        self._critic_step.zero_grad()
-        critic_loss.backward()
+            # Critic: soft Bellman target from the target critics; truncation is not a terminal.
+            noise = torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device)
+            if actor_step:
+                noise = torch.cat((noise, torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device)))
+                pi_in = torch.cat((batch.next_obs, obs))
+            else:
+                pi_in = batch.next_obs
+            both_action, both_logp, saved = squashed_gaussian_forward(pi_k.forward(actor, pi_in), noise)
+            next_action, next_logp = both_action[:n], both_logp[:n]
+            q_next = q_k.forward(self._target_params, torch.cat((batch.next_obs, next_action), -1))
+            q_next = q_next.min(0).values - alpha * next_logp
+            target = reward.detach() + cfg.gamma * (1.0 - batch.terminated) * q_next
+            # Loss: sum over critics of the mean squared TD error; dL/dq = 2 (q - target) / B.
+            q = q_k.forward(critic, torch.cat((obs, batch.action), -1))
+            q_mean = q.mean()
+            td = q - target
+            critic_loss = td.square().mean(1).sum()
+            dq = td.mul_(2.0 / n)
+            q_k.backward(critic, dq, self._critic_grads)
+            for p, g in zip(critic, self._critic_grads, strict=True):
+                p.grad = g
+        if reward.requires_grad:
+            # The target's reward term gets dL/dtarget = -sum_e dL/dq_e (HARS's joint objective).
+            reward.backward(dq.sum(0).neg_())
         self._critic_step.step()
         self.updates += 1
-        metrics = {"critic_loss": critic_loss.detach(), "q_mean": q.detach().mean(), "alpha": alpha}
+        metrics = {"critic_loss": critic_loss, "q_mean": q_mean, "alpha": alpha}
         if self.updates % cfg.policy_delay:
             return metrics
 
-        # Actor: maximise min-Q minus alpha log-prob; the critics run on detached parameters, so this
-        # loss gives them no gradient (and the freshly updated critics are used, as before).
-        action, logp = self.actor.sample(batch.obs)
-        q_pi = self.critic(batch.obs, action, [p.detach() for p in critic_params]).min(0).values
-        actor_loss = (alpha * logp - q_pi).mean()
-        self._actor_step.zero_grad()
-        actor_loss.backward()
+        with torch.no_grad():
+            # Actor: maximise min-Q minus alpha log-prob, on the freshly updated critics, which get no
+            # gradient from this loss (only dL/daction is propagated through them).
+            action, logp = both_action[n:], both_logp[n:]
+            saved = tuple(t[n:] for t in saved)
+            q_pi = q_k.forward(critic, torch.cat((obs, action), -1))
+            q_min, argmin = q_pi.min(0)
+            actor_loss = (alpha * logp - q_min).mean()
+            d_action = q_k.input_grad_of_min(critic, argmin, -1.0 / n, slice(self.obs_dim, None))
+            pi_k.backward(actor, squashed_gaussian_backward(saved, d_action, alpha / n), self._actor_grads,
+                          slice(n, None))
+            for p, g in zip(actor, self._actor_grads, strict=True):
+                p.grad = g
+            if cfg.autotune_alpha:
+                # d/d log_alpha of -mean(log_alpha * (logp + target_entropy)).
+                self.log_alpha.grad = (logp + self.target_entropy).mean().neg_()
         if cfg.autotune_alpha:
-            # d/d log_alpha of -mean(log_alpha * (logp + target_entropy)), without a backward pass.
-            with torch.no_grad():
-                self.log_alpha.grad = (logp.detach() + self.target_entropy).mean().neg_()
             self._actor_alpha_step.step()  # actor and temperature in one fused Adam call
         else:
             self._actor_step.step()
-        polyak_update(self.critic, self.critic_target, cfg.tau)
-        metrics.update(actor_loss=actor_loss.detach(), entropy=-logp.detach().mean())
+        with torch.no_grad():
+            torch._foreach_lerp_(self._target_params, critic, cfg.tau)
+        metrics.update(actor_loss=actor_loss, entropy=-logp.mean())
         return metrics
 
     @torch.no_grad()
@@ -131,3 +190,4 @@ class SAC:
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.alpha_opt.load_state_dict(state["alpha_opt"])
         self.updates = state["updates"]
+        self._bind_params()

@@ -6,9 +6,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from mira.config import TrainConfig
-from mira.methods import MethodParts
 from mira.loop.outer import MiraOuterLoop, save_program_version
 from mira.lsfs import backend_from_config
+from mira.methods import MethodParts
 from mira.shaping.method import _action_dim, initial_program
 from mira.tasks.card import TaskCard
 

@@ -172,7 +172,8 @@ class Reframer:
         comp = complexity(len(cand.operators), len(cand.program.factors) - len(current.factors), code_growth)
         j_srr = self.surrogate.score(cand.operators, direction, comp)
         predicted = dict(zip(METRICS, self.surrogate.predict(cand.operators).round(4).tolist(), strict=True))
-        cand.verdicts["efficacy"] = {**eff.as_dict(), "j_srr": j_srr, "complexity": comp, "predicted_delta_d": predicted}
+        cand.verdicts["efficacy"] = {**eff.as_dict(), "j_srr": j_srr, "complexity": comp,
+                                     "predicted_delta_d": predicted}
         ok = eff.auc > cfg.min_auc and eff.auc_p < cfg.max_p_value and j_srr > 0
         if not ok:
             cand.verdicts["rejected"] = (f"proxy efficacy: AUC {eff.auc:.3f} (p {eff.auc_p:.3g}), J_SRR {j_srr:.3f} "
