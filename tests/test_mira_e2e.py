@@ -46,3 +46,16 @@ def test_endpoint_down_records_failed_interventions_and_training_goes_on(tmp_pat
         decision = json.loads(path.read_text())
         assert decision["failed"] and not decision["accepted"] and "LLM call failed" in decision["reason"]
     assert read_csv(run / "eval.csv")[-1]["step"] == "800"
+
+
+@pytest.mark.slow
+def test_diagnosis_only_on_humanoidstandup_logs_every_cycle_and_never_edits(tmp_path: Path,
+                                                                             fast_train_args: list[str]) -> None:
+    run = tmp_path / "run"
+    code = main(["train", "--task", "humanoidstandup", "--method", "mira-no-srr", "--steps", "800", "--seed", "0",
+                 "--out", str(run), *fast_train_args, *FAST_MIRA])
+    assert code == 0
+    rows = read_csv(run / "diagnostics.csv")
+    assert len(rows) == 2 and all(r["version"] == "0" for r in rows)
+    assert not (run / "interventions").exists() or not any((run / "interventions").iterdir())
+    assert sorted(p.name for p in (run / "programs").glob("*.json")) == ["v000.json"]
