@@ -22,7 +22,7 @@ from mira.runio.csvlog import read_csv
 
 pytestmark = [pytest.mark.faults, pytest.mark.slow]
 
-STEPS = "1600"
+STEPS = "3000"
 ARGS = ["train", "--task", "halfcheetah", "--method", "mira-no-mcm", "--steps", STEPS, "--seed", "1",
         "--learning-starts", "300", "--batch-size", "32", "--hidden", "16,16", "--eval-every", "400",
         "--eval-episodes", "1", "--max-episode-steps", "100", "--checkpoint-every", "100", "--log-every", "200",
@@ -60,21 +60,22 @@ def test_kills_at_fail_points_and_random_instants_lose_nothing(tmp_path: Path) -
     assert expected["eval"] and expected["diagnostics"]
 
     run = tmp_path / "run"
-    points = ["checkpoint.after_payload:3", "checkpoint.before_payload:5", "checkpoint.after_manifest:4",
-              "srr.before_call:1", "srr.after_reply:2", "program.saved:1", "program.applied:1",
-              "checkpoint.after_payload:9", "srr.after_reply:1", "checkpoint.after_manifest:11"]
+    points = ["checkpoint.after_payload:2", "checkpoint.before_payload:3", "checkpoint.after_manifest:2",
+              "srr.before_call:1", "srr.after_reply:1", "program.saved:1", "program.applied:1",
+              "checkpoint.after_payload:1", "srr.after_reply:2", "checkpoint.after_manifest:3",
+              "checkpoint.before_payload:2", "srr.before_call:2"]
     rng = random.Random(7)
+    # Each attempt arms one fail point (or none) and a timer: whichever comes first kills the process.
+    schedule = [(p, rng.uniform(6.0, 14.0)) for p in points] + [("", rng.uniform(3.0, 10.0)) for _ in range(14)]
     kills = 0
-    first = True
-    schedule = [(p, None) for p in points] + [("", rng.uniform(4.0, 25.0)) for _ in range(12)]
     for failpoint, delay in schedule:
-        args = [*ARGS, "--out", str(run)] if first else ["train", "--resume", str(run), "--quiet"]
+        started = (run / "config.json").exists()
+        args = ["train", "--resume", str(run), "--quiet"] if started else [*ARGS, "--out", str(run)]
         code = _run(args, failpoint, delay)
         if code == 0:
-            break  # finished before this fault could hit
+            break  # the run finished before this fault could hit
         assert code == -signal.SIGKILL, f"unexpected exit {code}"
         kills += 1
-        first = first and not (run / "config.json").exists()
     assert kills >= 20
     while True:  # finish the run
         code = _run(["train", "--resume", str(run), "--quiet"])

@@ -181,3 +181,17 @@ def test_retry_after_parsing() -> None:
     assert parse_retry_after({"retry-after": "Wed, 21 Oct 2015 07:28:10 GMT"}, now=1445412480.0) == 10.0
     assert parse_retry_after({"retry-after": "soon"}) is None
     assert parse_retry_after({}) is None
+
+
+def test_a_body_that_is_not_json_is_a_typed_error() -> None:
+    from chat_server import ChatServer, raw
+
+    from mira.llm.base import LLMBadReplyError, LLMRequest
+    from mira.llm.openai_backend import OpenAIBackend
+
+    with ChatServer() as server:
+        server.push(raw(b"this is not JSON at all"))
+        backend = OpenAIBackend("m", base_url=server.url, api_key_env="MIRA_TEST_NO_SUCH_KEY", max_retries=0,
+                                timeout_s=5)
+        with pytest.raises(LLMBadReplyError, match="not JSON"):
+            backend.complete(LLMRequest(messages=[{"role": "user", "content": "hi"}]))

@@ -188,6 +188,10 @@ class OpenAIBackend:
                 raise LLMBadReplyError(
                     f"{self.base_url} answered with a malformed body: {_short(exc.message)}", attempts=attempt
                 ) from exc
+            except ValueError as exc:  # the SDK decoding a body that is not JSON (json.JSONDecodeError)
+                raise LLMBadReplyError(
+                    f"{self.base_url} answered with a body that is not JSON: {_short(str(exc))}", attempts=attempt
+                ) from exc
             else:
                 return self._reply(response, attempt, started)
             if attempt < tries:

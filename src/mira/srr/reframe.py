@@ -99,6 +99,10 @@ class Reframer:
         except LLMError as exc:
             return self._finish(folder, SRRDecision(False, program, f"LLM call failed: {type(exc).__name__}: {exc}",
                                                     backoff=True, failed=True))
+        except Exception as exc:  # a backend's own bug must not end hours of training: record it instead
+            log.exception("SRR: the LLM backend raised an unexpected error")
+            return self._finish(folder, SRRDecision(False, program, f"LLM call failed: {type(exc).__name__}: {exc}",
+                                                    backoff=True, failed=True))
         atomic_write_text(folder / "response.txt", reply.content)
         failpoint("srr.after_reply")
         try:
