@@ -1,21 +1,18 @@
-"""Networks shared by SAC and DDPG, and the small pieces of their updates that are tuned for speed.
+"""Networks shared by SAC and DDPG, and the autograd-free kernels their updates run on.
 
 The twin critics of SAC are one *ensemble* module: every layer holds the weights of all critics as a
 ``[E, in, out]`` tensor and runs as a single batched matmul (``baddbmm``), so two critics cost one
 kernel call per layer instead of two, forward and backward. DDPG uses the same module with E = 1.
 
-Performance notes (measured on a 2-core AVX2 CPU, batch 256, 2x256 ReLU nets; see bench/RESULTS.md):
-
-* every module can run on an explicit list of its parameters (``params=``). The actor's loss runs the
-  critic on *detached* parameters, which is what ``critic.requires_grad_(False)`` did, without
-  toggling flags on every update;
-* ReLUs run in place on the fresh output of their matmul (one [E, B, H] allocation less per layer:
-  on CPU, fresh large allocations cost page faults);
-* the critic's output layer (width 1) is a ``vecdot`` instead of a ``baddbmm``: MKL's batched GEMM
-  with N = 1 (forward) and K = 1 (its backward, an outer product) is several times slower than the
-  equivalent broadcast multiply-and-reduce;
-* :class:`AdamStepper` applies Adam with one call of the fused kernel per group of optimisers,
-  skipping ``Optimizer.step``'s Python bookkeeping (same arithmetic as ``Adam(fused=True).step()``).
+The modules (``forward``, ``sample``, ...) are what acting, evaluation and the monitor use. The
+agents' updates instead run :class:`EnsembleQKernels` and :class:`MLPKernels`, which compute the same
+forward passes and explicit backward passes on activation / gradient buffers reused across updates,
+with :func:`squashed_gaussian_forward` / :func:`squashed_gaussian_backward` for SAC's policy and
+:class:`AdamStepper` for the optimisers. Measured on a 2-core AVX2 CPU (batch 256, 2x256 nets; see
+bench/RESULTS.md) they remove autograd's per-op graph and allocations (and the page faults of fresh
+large allocations), run ReLUs in place, give the critics' width-1 output layer a GEMV (MKL's batched
+GEMM is several times slower at N = 1 and at K = 1), backpropagate the actor's loss through ``min_e
+Q_e`` only where each critic is the minimum, and skip ``Optimizer.step``'s Python bookkeeping.
 """
 
 from __future__ import annotations
@@ -94,7 +91,8 @@ class EnsembleQKernels:
 
     * :meth:`forward` runs all members on ``x [B, in]`` and keeps the post-ReLU activations;
     * :meth:`backward` takes ``dL/dq [E, B]`` and writes the parameter gradients into ``grads``
-      (the same values autograd would produce) and/or returns ``dL/dx[:, cols]``.
+      (the values autograd would produce, up to float rounding);
+    * :meth:`input_grad_of_min` gives ``dL/dx`` for a loss on ``min_e Q_e`` (the actor's).
 
     Every call must run under ``torch.no_grad()``; results live in the buffers until the next call.
     """
@@ -120,6 +118,14 @@ class EnsembleQKernels:
             self._bufs[key] = bufs
         return bufs
 
+    def _inputs(self) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+        """The input of every layer of the last forward (``x`` broadcast over members, then the
+        hidden activations) and the gradient buffers."""
+        x, bufs = self._x, self._cur
+        if x is None or bufs is None:
+            raise RuntimeError("backward before forward")
+        return [x.expand(self.ensemble, -1, -1), *bufs[0]], bufs[1]
+
     def forward(self, params: Sequence[torch.Tensor], x: torch.Tensor) -> torch.Tensor:
         """``Q_e(x)`` for every member, ``[E, B]`` (a buffer, overwritten by the next forward)."""
         bufs = self._cur = self._buffers(x)
@@ -130,63 +136,50 @@ class EnsembleQKernels:
         for i in range(0, last, 2):
             h = torch.baddbmm(params[i + 1], h, params[i], out=acts[i // 2]).relu_()
         w, b = params[last], params[last + 1]
-        for m in range(e):  # width-1 output: one GEMV per member (MKL's batched GEMM is slow at N=1)
+        for m in range(e):  # width-1 output: one GEMV per member (MKL's batched GEMM is slow at N = 1)
             torch.mv(h[m], w[m, :, 0], out=q[m])
         q += b.view(e, 1)
         self._x = x
         return q
 
-    def backward(self, params: Sequence[torch.Tensor], dq: torch.Tensor, grads: Sequence[torch.Tensor] | None,
-                 input_cols: slice | None = None) -> torch.Tensor | None:
-        """Backpropagate ``dq = dL/dq [E, B]`` through the last :meth:`forward`.
-
-        ``grads`` (same shapes as ``params``) receive ``dL/dparams``; with ``input_cols`` the return
-        value is ``dL/dx[:, input_cols]`` summed over members, ``[B, cols]``.
-        """
-        x, bufs = self._x, self._cur
-        assert x is not None and bufs is not None, "backward() before forward()"
-        acts, gbufs, _ = bufs
+    def backward(self, params: Sequence[torch.Tensor], dq: torch.Tensor, grads: Sequence[torch.Tensor]) -> None:
+        """Write ``dL/dparams`` into ``grads`` (same shapes as ``params``) given ``dq = dL/dq [E, B]``
+        of the last :meth:`forward` (``x`` gets no gradient)."""
+        ins, gbufs = self._inputs()
         e = self.ensemble
         last = len(params) - 2
-        h = acts[-1]
-        if grads is not None:
-            gw = grads[last]
-            for m in range(e):
-                torch.mv(h[m].t(), dq[m], out=gw[m, :, 0])
-            torch.sum(dq, 1, out=grads[last + 1].view(e))
+        h = ins[-1]
+        for m in range(e):  # output layer: dW = h^T dq (GEMV), db = sum dq
+            torch.mv(h[m].t(), dq[m], out=grads[last][m, :, 0])
+        torch.sum(dq, 1, out=grads[last + 1].view(e))
+        if last == 0:
+            return
+        # dL/d(pre-activation of the last hidden layer): dq (x) w, where the ReLU was active.
         g = torch.mul(dq.unsqueeze(-1), params[last].transpose(1, 2), out=gbufs[-1])
         torch.ops.aten.threshold_backward.grad_input(g, h, 0, grad_input=g)
         for i in range(last - 2, -1, -2):
-            layer = i // 2
-            inp = acts[layer - 1] if layer > 0 else x.expand(e, -1, -1)
-            if grads is not None:
-                torch.bmm(inp.transpose(1, 2), g, out=grads[i])
-                torch.sum(g, 1, keepdim=True, out=grads[i + 1])
-            if layer > 0:
-                g_in = torch.bmm(g, params[i].transpose(1, 2), out=gbufs[layer - 1])
+            inp = ins[i // 2]
+            torch.bmm(inp.transpose(1, 2), g, out=grads[i])
+            torch.sum(g, 1, keepdim=True, out=grads[i + 1])
+            if i > 0:
+                g_in = torch.bmm(g, params[i].transpose(1, 2), out=gbufs[i // 2 - 1])
                 g = torch.ops.aten.threshold_backward.grad_input(g_in, inp, 0, grad_input=g_in)
-            elif input_cols is not None:
-                return torch.bmm(g, params[0][:, input_cols, :].transpose(1, 2)).sum(0)
-        return None
-
 
     def input_grad_of_min(self, params: Sequence[torch.Tensor], argmin: torch.Tensor | None, scale: float,
                           input_cols: slice) -> torch.Tensor:
-        """``dL/dx[:, input_cols]`` for ``L = scale * sum_b q[argmin_b, b]`` (``argmin [B]``: the
-        member each row's minimum came from; ``None`` for a single member), after :meth:`forward`.
+        """``dL/dx[:, input_cols]`` for ``L = scale * sum_b q[argmin_b, b]`` after :meth:`forward`
+        (``argmin [B]``: the member each row's minimum came from; ``None`` when there is one member).
 
-        Same result as :meth:`backward` with ``dq`` one-hot on the argmin (the actor's loss through
-        ``min_e Q_e``), but each member only backpropagates the rows where it was the minimum: half
-        the matmul work of the full backward for twin critics.
+        That is the actor's loss through ``min_e Q_e`` (autograd's ``min`` sends each row's gradient
+        to its argmin member); each member only backpropagates the rows where it was the minimum,
+        which halves the matmul work for twin critics. The critics' parameters get no gradient.
         """
-        x, bufs = self._x, self._cur
-        assert x is not None and bufs is not None, "input_grad_of_min() before forward()"
-        acts = bufs[0]
+        ins, _ = self._inputs()
         last = len(params) - 2
         w0 = params[0][:, input_cols, :]
         if argmin is None and self.ensemble != 1:
             raise ValueError("argmin is required with more than one member")
-        dx = x.new_zeros(x.shape[0], w0.shape[1]) if argmin is not None else None
+        dx = None if argmin is None else ins[0].new_zeros(ins[0].shape[1], w0.shape[1])
         for m in range(self.ensemble):
             idx = None if argmin is None else (argmin == m).nonzero().squeeze(1)
             if idx is not None and idx.numel() == 0:
@@ -195,17 +188,20 @@ class EnsembleQKernels:
             def rows(t: torch.Tensor, idx: torch.Tensor | None = idx) -> torch.Tensor:
                 return t if idx is None else t.index_select(0, idx)
 
-            h = rows(acts[-1][m])
-            g = torch.ops.aten.threshold_backward((params[last][m, :, 0] * scale).expand_as(h), h, 0)
-            for i in range(last - 2, 0, -2):
-                inp = rows(acts[i // 2 - 1][m])
-                g = torch.mm(g, params[i][m].t())
-                g = torch.ops.aten.threshold_backward.grad_input(g, inp, 0, grad_input=g)
-            g = torch.mm(g, w0[m].t())
-            if idx is None:
-                return g
-            assert dx is not None
-            dx.index_copy_(0, idx, g)
+            w_out = params[last][m, :, 0] * scale
+            if last == 0:  # no hidden layer: dL/dx = scale * w
+                g = w_out[input_cols].expand(ins[0].shape[1] if idx is None else idx.numel(), -1)
+            else:
+                h = rows(ins[-1][m])
+                g = torch.ops.aten.threshold_backward(w_out.expand_as(h), h, 0)
+                for i in range(last - 2, 0, -2):
+                    inp = rows(ins[i // 2][m])
+                    g = torch.mm(g, params[i][m].t())
+                    g = torch.ops.aten.threshold_backward.grad_input(g, inp, 0, grad_input=g)
+                g = torch.mm(g, w0[m].t())
+            if dx is None:
+                return g.contiguous()
+            dx.index_copy_(0, idx, g)  # type: ignore[arg-type]
         assert dx is not None
         return dx
 
