@@ -185,7 +185,6 @@ def test_retry_after_parsing() -> None:
 
 def test_a_body_that_is_not_json_is_a_typed_error() -> None:
     from chat_server import ChatServer, raw
-
     from mira.llm.base import LLMBadReplyError, LLMRequest
     from mira.llm.openai_backend import OpenAIBackend
 

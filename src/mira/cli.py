@@ -21,6 +21,8 @@ import torch
 
 from mira import __version__
 from mira.agents import ALGOS
+from mira.cli_types import nonneg_int as _nonneg_int
+from mira.cli_types import positive_int as _positive_int
 from mira.config import TrainConfig, apply_override, from_dict, to_dict
 from mira.errors import DiskFullError, MiraError, NonFiniteError, UsageError
 from mira.methods import METHODS, build_method
@@ -32,26 +34,6 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
-    return value
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must not be negative, got {value}")
-    return value
 
 
 def _hidden(text: str) -> tuple[int, ...]:
@@ -221,13 +203,12 @@ def cmd_factors(args: argparse.Namespace) -> int:
     from mira.config import LLMConfig
     from mira.factors.program import save_program
     from mira.lsfs import backend_from_config, synthesize_program
-    from mira.tasks.envs import make_env
+    from mira.tasks.envs import action_dim
 
     card = load_task(args.task)
-    action_dim = int(make_env(card).action_space.shape[0])  # type: ignore[index]
     llm = LLMConfig(backend=args.llm, base_url=args.base_url, api_key_env=args.api_key_env,
                     cache_dir=args.llm_cache, offline_only=args.llm_offline_only)
-    program = synthesize_program(card, backend_from_config(llm, _default_cache(), None), action_dim)
+    program = synthesize_program(card, backend_from_config(llm, _default_cache(), None), action_dim(card))
     if args.out:
         save_program(program, args.out)
         print(f"mira: wrote {args.out} ({len(program.factors)} factors)", file=sys.stderr)

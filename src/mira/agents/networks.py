@@ -70,6 +70,7 @@ class EnsembleQ(nn.Module):
         """``[W_1, b_1, ..., W_L, b_L]``, the order :func:`ensemble_q` and ``forward(params=)`` take."""
         out: list[torch.Tensor] = []
         for layer in self.layers:
+            assert isinstance(layer, EnsembleLinear)
             out += (layer.weight, layer.bias)
         return out
 
@@ -99,7 +100,8 @@ class EnsembleQKernels:
 
     def __init__(self, critic: EnsembleQ) -> None:
         self.ensemble = critic.ensemble
-        self.widths = [layer.weight.shape[2] for layer in critic.layers]
+        self.widths: list[int] = [int(layer.weight.shape[2]) for layer in critic.layers
+                                  if isinstance(layer, EnsembleLinear)]
         self._bufs: dict[tuple[int, torch.dtype, torch.device], tuple[list[torch.Tensor], list[torch.Tensor],
                                                                       torch.Tensor]] = {}
         self._x: torch.Tensor | None = None
@@ -474,7 +476,7 @@ class AdamStepper:
     def _fast_ok(opt: torch.optim.Optimizer) -> bool:
         if _FUSED_ADAM is None or type(opt) is not torch.optim.Adam:
             return False
-        if opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks:  # type: ignore[attr-defined]
+        if opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks:
             return False
         from torch.optim import optimizer as _optimizer_mod
 

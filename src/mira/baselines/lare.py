@@ -246,24 +246,9 @@ def synthesize_lare_program(
 
 
 def make_lare_backend(llm: LLMConfig, run_dir: Path) -> LLMBackend:
-    from mira.llm.factory import make_backend
+    from mira.lsfs import backend_from_config
 
-    return make_backend(
-        llm.backend, base_url=llm.base_url, api_key_env=llm.api_key_env,
-        cache_dir=llm.cache_dir or Path(run_dir) / "llm" / "cache", offline_only=llm.offline_only,
-        audit_dir=run_dir, max_calls=llm.max_calls, max_tokens_total=llm.max_tokens_total,
-        timeout_s=llm.timeout_s, max_retries=llm.max_retries,
-    )
-
-
-def _action_dim(card: TaskCard) -> int:
-    from mira.tasks.envs import make_env
-
-    env = make_env(card)
-    try:
-        return int(env.action_space.shape[0])  # type: ignore[index]
-    finally:
-        env.close()
+    return backend_from_config(llm, Path(run_dir) / "llm" / "cache", Path(run_dir))
 
 
 def lare_program(
@@ -300,7 +285,9 @@ def lare_program(
         attempts: list[dict[str, Any]] = []
     else:
         engine = backend if backend is not None else make_lare_backend(llm, run_dir)
-        program, attempts = synthesize_lare_program(card, _action_dim(card), engine, config, seed=seed)
+        from mira.tasks.envs import action_dim
+
+        program, attempts = synthesize_lare_program(card, action_dim(card), engine, config, seed=seed)
         origin = f"reward engineer {llm.backend}"
     atomic_write_json(saved, program.to_json())
     atomic_write_json(Path(run_dir) / SYNTHESIS_FILE, {"origin": origin, "attempts": attempts,

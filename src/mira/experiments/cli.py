@@ -12,27 +12,9 @@ import sys
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
+from mira.cli_types import nonneg_int as _nonneg_int
+from mira.cli_types import positive_int as _positive_int
 from mira.errors import MiraError, UsageError
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
-    return value
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must not be negative, got {value}")
-    return value
 
 
 def _positive_float(text: str) -> float:

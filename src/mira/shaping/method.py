@@ -34,23 +34,14 @@ def program_path(run_dir: Path, version: int) -> Path:
     return Path(run_dir) / PROGRAMS_DIR / f"v{version:03d}.json"
 
 
-def _action_dim(card: TaskCard) -> int:
-    from mira.tasks.envs import make_env
-
-    env = make_env(card)
-    try:
-        return int(env.action_space.shape[0])  # type: ignore[index]
-    finally:
-        env.close()
-
-
 def lsfs_program(card: TaskCard, llm: LLMConfig, run_dir: Path) -> FactorProgram:
     """Ask the configured reward engineer for the initial program (section 4.2.1)."""
     from mira.lsfs import SynthesisError, backend_from_config, synthesize_program
+    from mira.tasks.envs import action_dim
 
     backend = backend_from_config(llm, Path(run_dir) / "llm" / "cache", Path(run_dir))
     try:
-        return synthesize_program(card, backend, _action_dim(card))
+        return synthesize_program(card, backend, action_dim(card))
     except SynthesisError as exc:
         raise UsageError(f"LSFS: {exc}") from exc
 

@@ -52,6 +52,15 @@ class EpisodicRewardWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.n
         self._episode_sum = float(value)
 
 
+def action_dim(card: TaskCard) -> int:
+    """Size of the task's action vector (builds the environment once to read it)."""
+    env = make_env(card)
+    try:
+        return int(env.action_space.shape[0])  # type: ignore[index]
+    finally:
+        env.close()
+
+
 def make_env(card: TaskCard, seed: int | None = None, max_episode_steps: int | None = None) -> EpisodicRewardWrapper:
     """Create the task's environment with actions rescaled to [-1, 1] and the episodic reward.
 
