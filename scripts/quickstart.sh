@@ -3,12 +3,13 @@
 # (sparse-reward) setting, with the offline rule-based reward engineer (no network, no API key),
 # then print the story of the run. The outer loop runs on short cycles (ΔT = 1,000 steps, short
 # warm-up) so that monitoring and reframing show within minutes; Table 1's defaults are
-# ΔT = 5,000 and a 10-cycle warm-up (drop the --set flags for those).
+# ΔT = 5,000 and a 10-cycle warm-up (drop the --set flags for those). One intra-op thread: with two,
+# any other job on a 2-core machine stalls every OpenMP barrier (see bench/RESULTS.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 mira train --task halfcheetah --method mira --algo sac --steps 15000 --learning-starts 2000 \
-  --eval-every 2500 --eval-episodes 3 --seed 0 --out runs/quickstart --overwrite \
+  --eval-every 2500 --eval-episodes 3 --seed 0 --threads 1 --out runs/quickstart --overwrite \
   --set mira.mcm.delta_t=1000 --set mira.mcm.k_warm=3 --set mira.mcm.buffer_min=3 \
   --set mira.mcm.min_scores=3 --set mira.mcm.k_cool=3 --set mira.holdout_episodes=1 "$@"
 mira explain runs/quickstart
