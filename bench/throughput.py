@@ -336,7 +336,7 @@ def main() -> int:
     p.add_argument("--disturbed", type=float, default=0.25, metavar="CORES",
                    help="a run is disturbed when other processes used more than this many cores meanwhile")
     p.add_argument("--retries", type=int, default=1, help="re-run a disturbed run up to this many times")
-    p.add_argument("--run-timeout", type=float, default=300.0, metavar="S",
+    p.add_argument("--run-timeout", type=float, default=240.0, metavar="S",
                    help="give up on a run after S seconds (counted as disturbed)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--task", default="halfcheetah")
