@@ -6,12 +6,16 @@ and budget on the environment's dense reward and is evaluated with the same prot
 policy, the same evaluation episode seeds). Results go to ``bench/RESULTS.md`` under "## Learning".
 
     python bench/learning.py --methods dense --sb3 --seeds 0,1,2 --steps 50000 --workers 2
+    python bench/learning.py --table-only --out bench/runs/learning   # rebuild the table from run dirs
+
+Every run writes its evaluation curve as it goes (``<out>/<who>-<algo>-s<seed>/eval.csv``, SB3's
+included), so a benchmark stopped by a time limit still yields a table: a run that did not finish
+is reported at the last step it reached.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import subprocess
@@ -42,7 +46,8 @@ def run_ours(method: str, algo: str, seed: int, steps: int, out: Path, extra: li
             "curve": [(int(r["step"]), float(r["return_mean"])) for r in rows]}
 
 
-def run_sb3(seed: int, steps: int, learning_starts: int, eval_every: int, eval_episodes: int) -> dict[str, object]:
+def run_sb3(seed: int, steps: int, learning_starts: int, eval_every: int, eval_episodes: int,
+            out: Path) -> dict[str, object]:
     import torch
     from stable_baselines3 import SAC
 
@@ -65,6 +70,12 @@ def run_sb3(seed: int, steps: int, learning_starts: int, eval_every: int, eval_e
             action, _ = model.predict(obs, deterministic=True)
             return np.asarray(action)
 
+    from mira.runio.csvlog import CsvLog
+
+    run = out / f"sb3-sac-s{seed}"
+    run.mkdir(parents=True, exist_ok=True)
+    (run / "eval.csv").unlink(missing_ok=True)
+    log = CsvLog(run / "eval.csv", ["step", "return_mean", "return_std", "wall_s"])
     t0 = time.time()
     curve = []
     done = 0
@@ -74,6 +85,7 @@ def run_sb3(seed: int, steps: int, learning_starts: int, eval_every: int, eval_e
         done += chunk
         result = evaluate(Policy(), eval_env, eval_episodes, seed + EVAL_SEED_OFFSET)  # type: ignore[arg-type]
         curve.append((done, result.mean))
+        log.append({"step": done, "return_mean": result.mean, "return_std": result.std, "wall_s": time.time() - t0})
     return {"who": "sb3 SAC", "algo": "sac", "seed": seed, "wall_s": time.time() - t0, "curve": curve}
 
 
@@ -81,6 +93,39 @@ def final_return(curve: list[tuple[int, float]], steps: int) -> float:
     """Asymptotic performance: mean eval return over the final 10% of training (at least the last)."""
     tail = [r for s, r in curve if s > 0.9 * steps] or [curve[-1][1]]
     return float(np.mean(tail))
+
+
+def collect(out: Path) -> dict[str, list[tuple[int, list[tuple[int, float]], float]]]:
+    """Read every run directory under ``out``: who → [(seed, curve, wall seconds)]."""
+    from mira.runio.csvlog import read_csv
+
+    found: dict[str, list[tuple[int, list[tuple[int, float]], float]]] = {}
+    for eval_csv in sorted(out.glob("*-s*/eval.csv")):
+        name = eval_csv.parent.name
+        stem, _, seed = name.rpartition("-s")
+        who, _, algo = stem.rpartition("-")
+        rows = read_csv(eval_csv)
+        if not rows or not seed.isdigit():
+            continue
+        curve = [(int(r["step"]), float(r["return_mean"])) for r in rows]
+        wall = float(rows[-1].get("wall_s") or "nan")
+        label = "sb3 SAC" if who == "sb3" else f"mira {who}"
+        found.setdefault(f"{label} ({algo})", []).append((int(seed), curve, wall))
+    return found
+
+
+def table(out: Path, steps: int, header: list[str]) -> str:
+    lines = [*header, "", "| method | final return (mean ± std over seeds) | per-seed | steps reached | wall s / run |",
+             "|---|---|---|---|---|"]
+    for who, runs in collect(out).items():
+        finals = [final_return(curve, max(s for s, _ in curve)) for _, curve, _ in runs]
+        reached = sorted({max(s for s, _ in curve) for _, curve, _ in runs})
+        walls = [w for _, _, w in runs if np.isfinite(w)]
+        wall = f"{np.mean(walls):.0f}" if walls else "-"
+        reach = ", ".join(str(r) for r in reached) + ("" if reached == [steps] else f" (of {steps})")
+        lines.append(f"| {who} | {np.mean(finals):.1f} ± {np.std(finals):.1f} | "
+                     f"{', '.join(f'{v:.0f}' for v in finals)} | {reach} | {wall} |")
+    return "\n".join(lines)
 
 
 def main() -> None:
@@ -96,44 +141,34 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=ROOT / "bench" / "runs" / "learning")
     p.add_argument("--train-args", default="", help="extra flags for mira train")
+    p.add_argument("--table-only", action="store_true", help="only rebuild the table from the run directories")
+    p.add_argument("--commit", default=os.environ.get("MIRA_COMMIT", ""), help="commit to name in the table")
     args = p.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     extra = ["--learning-starts", str(args.learning_starts), "--eval-every", str(args.eval_every),
              "--eval-episodes", str(args.eval_episodes), *args.train_args.split()]
     args.out.mkdir(parents=True, exist_ok=True)
-    jobs = []
-    with ProcessPoolExecutor(args.workers) as pool:
-        for method in args.methods.split(","):
-            for seed in seeds:
-                jobs.append(pool.submit(run_ours, method, args.algo, seed, args.steps, args.out, extra))
-        if args.sb3:
-            for seed in seeds:
-                jobs.append(pool.submit(run_sb3, seed, args.steps, args.learning_starts, args.eval_every,
-                                        args.eval_episodes))
-        results = [j.result() for j in jobs]
-    (args.out / "results.json").write_text(json.dumps(results, indent=1))
-    by_who: dict[str, list[float]] = {}
-    walls: dict[str, list[float]] = {}
-    for r in results:
-        by_who.setdefault(str(r["who"]), []).append(final_return(r["curve"], args.steps))  # type: ignore[arg-type]
-        walls.setdefault(str(r["who"]), []).append(float(r["wall_s"]))  # type: ignore[arg-type]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                            cwd=ROOT).stdout.strip()
-    lines = [
-        f"HalfCheetah-v5, {args.algo.upper()}, {args.steps} steps, seeds {args.seeds}, eval every {args.eval_every} "
-        f"steps x {args.eval_episodes} episodes; figure = mean eval return over the final 10% of training.",
+    if not args.table_only:
+        with ProcessPoolExecutor(args.workers) as pool:
+            jobs = [pool.submit(run_sb3, seed, args.steps, args.learning_starts, args.eval_every, args.eval_episodes,
+                                args.out) for seed in (seeds if args.sb3 else [])]
+            for method in args.methods.split(","):
+                for seed in seeds:
+                    jobs.append(pool.submit(run_ours, method, args.algo, seed, args.steps, args.out, extra))
+            for job in jobs:
+                job.result()
+    commit = args.commit or subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                           cwd=ROOT).stdout.strip()
+    header = [
+        f"HalfCheetah-v5, {args.algo.upper()}, {args.steps} steps, seeds {args.seeds}, learning starts "
+        f"{args.learning_starts}, eval every {args.eval_every} steps x {args.eval_episodes} episodes; figure = mean "
+        "eval return over the final 10% of the steps reached.",
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, 1 torch thread per run, "
-        f"{args.workers} runs in parallel; commit {commit}.",
-        "",
-        "| method | final return (mean ± std over seeds) | per-seed | wall s / run |",
-        "|---|---|---|---|",
+        f"{args.workers} runs in parallel; commit {commit}; extra train flags: {args.train_args or 'none'}.",
     ]
-    for who, vals in by_who.items():
-        lines.append(f"| {who} | {np.mean(vals):.1f} ± {np.std(vals):.1f} | "
-                     f"{', '.join(f'{v:.0f}' for v in vals)} | {np.mean(walls[who]):.0f} |")
-    table = "\n".join(lines)
-    print(table)
-    (args.out / "table.md").write_text(table + "\n")
+    text = table(args.out, args.steps, header)
+    print(text)
+    (args.out / "table.md").write_text(text + "\n")
 
 
 if __name__ == "__main__":
