@@ -96,6 +96,27 @@ def test_joint_gradient_equals_backprop_through_the_critic(algo: str) -> None:
     assert any(float(g.abs().sum()) > 0 for g in grads[0])
 
 
+@pytest.mark.parametrize("every", [1, 3])
+def test_training_runs_on_every_kth_update_but_phi_is_always_current(every: int) -> None:
+    src, buf, rng = _filled(config=HarsConfig(update_every=every))
+    params = lambda: [p.detach().clone() for m in (src.fab, src.vpm) for p in m.parameters()]  # noqa: E731
+    changed = []
+    for step in range(7):
+        before = params()
+        batch = buf.sample(16, rng)
+        reward = src.relabel(batch)
+        # The shaped reward uses the current Φ whether or not this batch trains HARS.
+        with torch.no_grad():
+            fresh = src.relabel(batch)
+        torch.testing.assert_close(reward.detach(), fresh)
+        assert reward.requires_grad == (step % every == 0)
+        metrics = src.update(batch, step)
+        assert torch.isfinite(metrics["l_align"])
+        changed.append(any(not torch.equal(a, b) for a, b in zip(before, params(), strict=True)))
+    assert changed == [step % every == 0 for step in range(7)]
+    assert src.updates == len(range(0, 7, every)) and src.calls == 7
+
+
 def test_non_joint_reward_is_a_constant_for_the_agent() -> None:
     src, buf, rng = _filled(config=HarsConfig(joint=False))
     batch = buf.sample(16, rng)

@@ -94,6 +94,12 @@ class MCMConfig:
     bandwidth_floor: float = 0.05
     """Lower bound on the KDE bandwidth, in standardised units."""
 
+    score_window: int = 50
+    """The threshold τ is the q-th percentile of the last this many scores (0: the whole history).
+    The median-heuristic bandwidth shrinks as the healthy buffer grows (h ∝ 1/√(2 log(n+1))), so
+    scores drift upward during a run; a percentile over all past scores would then be exceeded far
+    more often than 1 − q/100 of the time in a perfectly stationary regime."""
+
     top_m: int = 2
     """Number of metric-level contributors reported on a trigger (ranked by ``|∇ log p|``)."""
 

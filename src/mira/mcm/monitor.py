@@ -4,7 +4,8 @@ Per cycle the trainer builds a :class:`CycleSnapshot` and calls :meth:`Metacogni
 The monitor computes the raw diagnostics (remembering what it needs from the previous cycle: step,
 mean entropy, mean attention), standardises and smooths them, and runs Algorithm 1:
 
-1. warm-up (``k < K_warm`` or ``|B| < N_B,min``): insert d into the buffer, log a NaN score, no trigger;
+1. warm-up (``k < K_warm`` or ``|B| < N_B,min``): insert d into the buffer (once the standardiser has
+   ``min_history`` values, so that d is informative), log a NaN score, no trigger;
 2. ``S = -log p_healthy(d)``; append to the score history; ``τ = percentile(history, q)``;
    bandwidth EMA;
 3. insert d into the buffer iff the cycle's return beats the moving baseline (EMA, span M_base);
@@ -170,6 +171,7 @@ class MetacognitiveMonitor:
         raw = np.asarray(d_raw, dtype=np.float64).reshape(len(METRIC_NAMES)).copy()
         k = self.cycle
         self.cycle += 1
+        informative = self.standardizer.ready  # before it, z is all zeros: no evidence about health yet
         z, d = self.standardizer.update(raw)
 
         g = float(smoothed_return)
@@ -192,9 +194,12 @@ class MetacognitiveMonitor:
         }
         zero_grad = {n: 0.0 for n in METRIC_NAMES}
 
-        # Lines 2-4: warm-up — buffer filling only.
-        if len(self.model) < c.buffer_min or k < c.k_warm:
-            self.model.insert(d)
+        # Lines 2-4: warm-up — buffer filling only. Vectors from before the standardiser has seen
+        # `min_history` values are all zeros and would make every later vector look anomalous, so
+        # they do not enter the healthy buffer.
+        if not informative or len(self.model) < c.buffer_min or k < c.k_warm:
+            if informative:
+                self.model.insert(d)
             self.scores.append(math.nan)
             return MCMResult(
                 **common,
@@ -209,7 +214,7 @@ class MetacognitiveMonitor:
                 anomalous=self.anomalous,
                 above=self.above,
                 bandwidth=math.nan if self.model.bandwidth is None else self.model.bandwidth,
-                inserted=True,
+                inserted=informative,
                 gradient=zero_grad,
             )
 
@@ -218,6 +223,8 @@ class MetacognitiveMonitor:
         score = self.model.score(d)
         self.scores.append(score)
         hist = np.array([s for s in self.scores if math.isfinite(s)], dtype=np.float64)
+        if c.score_window > 0:
+            hist = hist[-c.score_window :]
         tau = float(np.percentile(hist, self.q))
         self.model.update_bandwidth()
 

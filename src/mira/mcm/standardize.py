@@ -95,12 +95,25 @@ class RobustStandardizer:
         Returns ``(standardised, smoothed)``; the smoothed vector is what enters the KDE.
         """
         xa = np.asarray(x, dtype=np.float64).reshape(self.dim)
+        was_ready = self.ready
         z = self.standardize(xa)
         for i, h in enumerate(self._hist):
             if np.isfinite(xa[i]):
                 h.append(float(xa[i]))
-        self._ema = z.copy() if self._ema is None else self.beta * self._ema + (1.0 - self.beta) * z
+        # The EMA starts at the first informative vector: the zeros of the warm-up would bias it.
+        if self._ema is None or not was_ready:
+            self._ema = z.copy()
+        else:
+            self._ema = self.beta * self._ema + (1.0 - self.beta) * z
         return z, self._ema.copy()
+
+    @property
+    def ready(self) -> bool:
+        """True once every component seen so far has ``min_history`` past values, so that the next
+        :meth:`update` returns real standardised values rather than the zeros of "no evidence yet".
+        (A component that has never been finite does not hold readiness back.)"""
+        seen = [len(h) for h in self._hist if len(h)]
+        return bool(seen) and min(seen) >= self.min_history
 
     @property
     def smoothed(self) -> NDArray[np.float64] | None:

@@ -110,6 +110,8 @@ class HarsReward(RewardSource):
         self.log_fields = BASE_LOG_FIELDS + tuple(f"attn_{n}" for n in factors.phi_names)
         self.generation = 0
         self.updates = 0
+        self.calls = 0  # agent updates seen; HARS trains on every ``update_every``-th
+        self._last_metrics: dict[str, torch.Tensor] | None = None
         self._pending: _Pending | None = None
         self._bound = False
         self._last_l_aux = torch.zeros(())
@@ -259,8 +261,8 @@ class HarsReward(RewardSource):
         idx = torch.from_numpy(batch.indices)
         f = torch.cat([self.col_phi[idx], self.col_phi_next[idx]])
         obs = torch.cat([batch.obs, batch.next_obs])
-        track = torch.is_grad_enabled()
         cfg = self.config
+        track = torch.is_grad_enabled() and self._trains_now()
         n_ctx = 0
         past = valid = None
         if track and cfg.aux_weight > 0 and cfg.tce_window >= 2 and self.updates % max(1, cfg.tce_every) == 0:
@@ -269,10 +271,12 @@ class HarsReward(RewardSource):
             flat = past.reshape(-1)
             f = torch.cat([f.to(self.device), self.col_phi[flat].to(self.device)])
             obs = torch.cat([obs, self.ctx.buffer.obs[flat].to(self.device)])
+        if not track:
+            with torch.no_grad():
+                phi, _, _ = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
+            return batch.reward + self.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b]
         phi, v_all, alpha_all = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
         v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
-        if not track:
-            return batch.reward + self.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b]
         leaf = phi.detach()
         if cfg.joint:
             leaf.requires_grad_(True)
@@ -282,7 +286,16 @@ class HarsReward(RewardSource):
         return batch.reward + self.gamma * (1.0 - batch.terminated) * leaf[b:] - leaf[:b]
 
     # -------------------------------------------------------------------------------- update
+    def _trains_now(self) -> bool:
+        # Always train when there are no figures to report yet (start, or a new program's first batch).
+        return self._last_metrics is None or self.calls % max(1, self.config.update_every) == 0
+
     def update(self, batch: Batch, step: int) -> dict[str, torch.Tensor]:
+        if not self._trains_now():
+            assert self._last_metrics is not None
+            self.calls += 1
+            self._pending = None
+            return self._last_metrics  # the latest training step's figures
         pending, self._pending = self._pending, None
         if pending is None or pending.batch is not batch:
             with torch.enable_grad():
@@ -313,6 +326,7 @@ class HarsReward(RewardSource):
         self.opt.step()
         self.opt.zero_grad(set_to_none=True)
         self.updates += 1
+        self.calls += 1
         with torch.no_grad():
             phi_d = phi_s.detach()
             metrics = {
@@ -325,6 +339,7 @@ class HarsReward(RewardSource):
             }
             if self._attn_keys:
                 metrics.update(zip(self._attn_keys, pending.alpha[:b].detach().mean(0).unbind(), strict=True))
+        self._last_metrics = metrics
         return metrics
 
     def _aux_loss(self, pending: _Pending, b: int) -> torch.Tensor:
@@ -348,6 +363,7 @@ class HarsReward(RewardSource):
         self._install(factors)
         self.recompute_all(reset_stats=True)
         self._build_phi_nets(keep_tce_state=True)
+        self._last_metrics = None  # the old program's figures (and attention keys) no longer apply
 
     # ---------------------------------------------------------------------- monitor helpers
     def _as_numpy(self, obs: np.ndarray | torch.Tensor) -> np.ndarray:
@@ -441,6 +457,9 @@ class HarsReward(RewardSource):
             "format": 1,
             "generation": self.generation,
             "updates": self.updates,
+            "calls": self.calls,
+            "last_metrics": None if self._last_metrics is None else {
+                k: v.detach().cpu() for k, v in self._last_metrics.items()},
             "last_l_aux": self._last_l_aux.detach().cpu(),
             "slots": dict(self.slots),
             "phi_names": list(self.phi_names),
@@ -476,6 +495,9 @@ class HarsReward(RewardSource):
         self.tce.load_state_dict(state["tce"])
         self.opt.load_state_dict(state["opt"])
         self.updates = int(state["updates"])
+        self.calls = int(state.get("calls", self.updates))
+        last = state.get("last_metrics")
+        self._last_metrics = None if last is None else {k: v.to(self.device) for k, v in last.items()}
         self._last_l_aux = state["last_l_aux"].to(self.device)
         self.factor_stats.load_state_dict(state["factor_stats"])
         self.obs_stats.load_state_dict(state["obs_stats"])
