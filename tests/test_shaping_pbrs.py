@@ -65,9 +65,12 @@ def test_relabel_uses_the_current_potential() -> None:
     batch = buf.sample(16, rng)
     with torch.no_grad():
         before = src.relabel(batch)
-        src.vpm.mlp[-1].bias.add_(1.0)  # Φ ← Φ + 1: shaped reward moves by γ·1·(1 − d) − 1
+        src.vpm.mlp[-1].bias.add_(1.0)  # Φ ← Φ + σ_R: shaped reward moves by σ_R (γ·(1 − d) − 1)
         after = src.relabel(batch)
-    torch.testing.assert_close(after - before, src.gamma * (1 - batch.terminated) - 1.0, rtol=1e-4, atol=1e-4)
+    unit = src.phi_scale
+    assert unit > 1.0  # the episode's return set the unit Φ is learned in
+    torch.testing.assert_close(after - before, unit * (src.gamma * (1 - batch.terminated) - 1.0), rtol=1e-4,
+                               atol=1e-4)
 
 
 def test_terminal_penalty_pulls_terminal_potential_to_zero() -> None:

@@ -65,7 +65,8 @@ def test_joint_gradient_equals_backprop_through_the_critic(algo: str) -> None:
 
     def run(direct: bool) -> None:
         torch.manual_seed(0)
-        src, buf, rng = _filled(config=HarsConfig(joint=True))
+        # σ_R = 1 (no return scaling) so that the direct path, which cannot divide by σ_R², matches.
+        src, buf, rng = _filled(config=HarsConfig(joint=True, return_scale=False))
         agent = make_agent(algo, 6, 2, AgentConfig(hidden=(16, 16), batch_size=32), torch.device("cpu"))
         batch = buf.sample(32, rng)
         reward = src.relabel(batch)

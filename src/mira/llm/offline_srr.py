@@ -39,6 +39,7 @@ from mira.llm.factorcode import (
     rewrite_returns,
     squared_features,
 )
+from mira.mcm.records import return_is_poor
 
 OPERATORS: tuple[str, ...] = ("Scale", "Sat", "Gate", "Refactor", "Add", "Prune")
 METRICS: tuple[str, ...] = ("PEG", "TPD", "PVC", "FAP", "RPE")
@@ -94,9 +95,7 @@ class Evidence:
     @property
     def poor_return(self) -> bool:
         """Return is not improving on its baseline (unknown counts as poor: MCM fired anyway)."""
-        if self.recent_mean is None or self.baseline is None:
-            return True
-        return self.recent_mean <= self.baseline
+        return return_is_poor(self.recent_mean, self.baseline)
 
 
 def _floats(raw: Any) -> dict[str, float]:

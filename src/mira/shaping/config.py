@@ -60,6 +60,15 @@ class HarsConfig:
     joint: bool = True
     """Eq. (10): let the critic's loss flow into (ϕ, φ) through the shaped reward. False: Φ is
     trained by L_align (+ regularisers) only and the agent sees a constant (detached) reward."""
+    return_scale: bool = True
+    """Learn Φ in units of the typical episodic return: Φ(s) = σ_R · Φ̂(s), with σ_R the root mean
+    square of recent episodic returns (at least 1), and the alignment and joint losses measured in
+    those units. Adam moves weights by about the learning rate per step whatever the gradient's size,
+    so without it a potential that must reach returns of 10^4-10^5 (HumanoidStandup) would need
+    millions of updates to get there; with it Φ̂ stays of order one on every task. A slowly moving
+    σ_R is just part of Φ's own learning. False: Φ is the network's raw output."""
+    return_scale_ema: float = 0.05
+    """Rate of the exponential average of squared episodic returns behind σ_R."""
     input_clip: float = 10.0
     """Normalised factor values and observations are clipped to ±this before entering the networks."""
     recompute_chunk: int = 65_536

@@ -44,6 +44,7 @@ every stored transition.
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -112,6 +113,7 @@ class HarsReward(RewardSource):
         self.updates = 0
         self.calls = 0  # agent updates seen; HARS trains on every ``update_every``-th
         self._last_metrics: dict[str, torch.Tensor] | None = None
+        self.return_sq: float | None = None  # EMA of squared episodic returns (σ_R², see HarsConfig)
         self._pending: _Pending | None = None
         self._bound = False
         self._last_l_aux = torch.zeros(())
@@ -182,6 +184,20 @@ class HarsReward(RewardSource):
         self._pending = None
 
     # ------------------------------------------------------------------------- factor columns
+    @property
+    def phi_scale(self) -> float:
+        """σ_R: the unit Φ is learned in (1 until an episode has ended, or with ``return_scale`` off)."""
+        if not self.config.return_scale or self.return_sq is None:
+            return 1.0
+        return max(1.0, math.sqrt(self.return_sq))
+
+    def on_episode_end(self, rows: np.ndarray, episode_return: float) -> None:
+        if not math.isfinite(episode_return):
+            return
+        sq = float(episode_return) ** 2
+        rho = self.config.return_scale_ema
+        self.return_sq = sq if self.return_sq is None else (1.0 - rho) * self.return_sq + rho * sq
+
     def on_transition(self, row: int) -> None:
         buf = self.ctx.buffer
         obs, next_obs, act = buf.obs[row].numpy(), buf.next_obs[row].numpy(), buf.action[row].numpy()
@@ -242,9 +258,10 @@ class HarsReward(RewardSource):
         x = ((f - f_mean) / f_std).clamp_(-c, c)
         o = ((obs - o_mean) / o_std).clamp_(-c, c)
         v, alpha, _ = self.fab(x, o, self.fab.ids(self._slot_t) if ids is None else ids, meta)
+        scale = self.phi_scale
         if n_phi is None:
-            return self.vpm(v, o), v, alpha
-        return self.vpm(v[:n_phi], o[:n_phi]), v, alpha
+            return self.vpm(v, o) * scale, v, alpha
+        return self.vpm(v[:n_phi], o[:n_phi]) * scale, v, alpha
 
     def _window_rows(self, rows: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         """Buffer rows of the W − 1 steps before each of ``rows`` (oldest first) and their validity."""
@@ -308,9 +325,10 @@ class HarsReward(RewardSource):
         phi_s, phi_n = pending.phi[:b], pending.phi[b:]
         term = batch.terminated
         target = (batch.reward + self.gamma * (1.0 - term) * phi_n).detach()
-        td = phi_s - target
+        unit = self.phi_scale  # losses in units of σ_R, so they weigh the same on every task
+        td = (phi_s - target) / unit
         l_td = td.pow(2).mean()
-        l_term = (term * phi_n.pow(2)).sum() / term.sum().clamp_min(1.0)
+        l_term = (term * (phi_n / unit).pow(2)).sum() / term.sum().clamp_min(1.0)
         l_align = l_td + cfg.terminal_weight * l_term
         entropy = attention_entropy(pending.alpha).mean()
         l_aux = self._aux_loss(pending, b)
@@ -318,7 +336,8 @@ class HarsReward(RewardSource):
             self._last_l_aux = l_aux.detach()
         loss = cfg.align_weight * l_align + cfg.aux_weight * l_aux - cfg.entropy_weight * entropy
         if pending.leaf is not None and pending.leaf.grad is not None:
-            loss = loss + (pending.leaf.grad * pending.phi).sum()
+            # The critic's loss is quadratic in reward units: σ_R² brings it to the alignment loss's units.
+            loss = loss + (pending.leaf.grad * pending.phi).sum() / (unit * unit)
         loss.backward()
         if cfg.max_grad_norm is not None:
             torch.nn.utils.clip_grad_norm_([p for g in self.opt.param_groups for p in g["params"]],
@@ -335,7 +354,7 @@ class HarsReward(RewardSource):
                 "l_align": l_align.detach(),
                 "l_aux": self._last_l_aux,  # the latest computed value (L_aux runs every tce_every)
                 "attn_entropy": entropy.detach(),
-                "rpe": l_td.detach() / (target.var(unbiased=False) + 1e-8),
+                "rpe": l_td.detach() * unit * unit / (target.var(unbiased=False) + 1e-8),
             }
             if self._attn_keys:
                 metrics.update(zip(self._attn_keys, pending.alpha[:b].detach().mean(0).unbind(), strict=True))
@@ -458,6 +477,7 @@ class HarsReward(RewardSource):
             "generation": self.generation,
             "updates": self.updates,
             "calls": self.calls,
+            "return_sq": self.return_sq,
             "last_metrics": None if self._last_metrics is None else {
                 k: v.detach().cpu() for k, v in self._last_metrics.items()},
             "last_l_aux": self._last_l_aux.detach().cpu(),
@@ -496,6 +516,7 @@ class HarsReward(RewardSource):
         self.opt.load_state_dict(state["opt"])
         self.updates = int(state["updates"])
         self.calls = int(state.get("calls", self.updates))
+        self.return_sq = state.get("return_sq")
         last = state.get("last_metrics")
         self._last_metrics = None if last is None else {k: v.to(self.device) for k, v in last.items()}
         self._last_l_aux = state["last_l_aux"].to(self.device)

@@ -23,6 +23,7 @@ from mira.factors.checker import check_program
 from mira.factors.program import FactorProgram, ProgramParseError, code_diff
 from mira.factors.sandbox import SandboxLimits, sandbox_check
 from mira.llm.base import LLMBackend, LLMError
+from mira.mcm.records import return_is_poor
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.runio.failpoints import failpoint
 from mira.srr.candidates import Candidate, parse_candidates
@@ -85,8 +86,8 @@ class Reframer:
     ) -> SRRDecision:
         cfg = self.config
         folder.mkdir(parents=True, exist_ok=True)
-        return_is_poor = evidence.recent_return <= evidence.baseline_return
-        hypotheses = rule_hypotheses(evidence.d, return_is_poor) if evidence.guided else []
+        poor = return_is_poor(evidence.recent_return, evidence.baseline_return)
+        hypotheses = rule_hypotheses(evidence.d, poor) if evidence.guided else []
         atomic_write_json(folder / "evidence.json", {**evidence.as_dict(),
                                                      "hypotheses": [h.as_dict() for h in hypotheses]})
         request = build_srr_request(self.card, program, evidence, hypotheses, cfg.max_candidates, cfg.operators,
