@@ -44,7 +44,8 @@ from mira.runio.atomic import atomic_write_text
 from mira.runio.csvlog import read_csv
 
 METHOD_TITLES = {
-    "dense": "Dense R (oracle)", "sparse": "Sparse R", "mira": "MIRA", "mira-no-mcm": "MIRA w/o MCM",
+    "dense": "Dense R (oracle)", "sparse": "Sparse R", "hars": "HARS (inner loop only)", "mira": "MIRA",
+    "mira-no-mcm": "MIRA w/o MCM",
     "mira-no-srr": "MIRA w/o SRR", "lare": "LaRe", "rd": "RD", "ircr": "IRCR", "vib": "VIB",
 }
 TASK_ORDER = ("halfcheetah", "humanoidstandup", "humanoid")
