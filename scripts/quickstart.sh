@@ -3,7 +3,7 @@
 # (sparse-reward) setting, with the offline rule-based reward engineer (no network, no API key),
 # then print the story of the run. The outer loop runs on short cycles (ΔT = 1,000 steps, short
 # warm-up) so that monitoring and reframing show within minutes — on a 2-core machine the monitor
-# fires at step 10,000 (about 2 minutes in), SRR proposes three edits, checks and verifies them, and
+# fires at step 10,000 (under 2 minutes in), SRR proposes three edits, checks and verifies them, and
 # accepts one; Table 1's defaults are ΔT = 5,000 and a 10-cycle warm-up (drop the --set flags for
 # those). One intra-op thread: with two,
 # any other job on a 2-core machine stalls every OpenMP barrier (see bench/RESULTS.md).
