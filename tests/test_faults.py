@@ -55,10 +55,15 @@ def _outcome(run: Path) -> dict[str, object]:
     return {"eval": evals, "diagnostics": diag, "programs": programs, "decisions": decisions}
 
 
+# The kill test runs longer, so that its bounded attempts (below) cannot reach the end before 20 kills.
+KILL_ARGS = [("6000" if a == STEPS else a) for a in ARGS]
+
+
 def _timed_reference(out: Path) -> tuple[float, float]:
     """Run the reference to completion; return (start-up seconds, training seconds) as this machine measures them."""
     started = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "mira.cli", *ARGS, "--out", str(out)], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "mira.cli", *KILL_ARGS, "--out", str(out)], capture_output=True,
+                          text=True,
                           timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
     wall = time.monotonic() - started
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -80,22 +85,26 @@ def test_kills_at_fail_points_and_random_instants_lose_nothing(tmp_path: Path) -
               "checkpoint.after_payload:1", "srr.after_reply:2", "checkpoint.after_manifest:3",
               "checkpoint.before_payload:2", "srr.before_call:2"]
     rng = random.Random(7)
-    # Each attempt arms one fail point and a timer: whichever comes first kills the process. The timer is scaled
-    # to this machine's own start-up and training time, and attempts without a named fail point carry a backstop
-    # (the first completed checkpoint), so that no attempt gets far into the run and the number of kills does
-    # not depend on how fast the machine is.
-    slice_s = training / 20
+    # Each attempt arms a fail point and a timer: whichever comes first kills the process. The timer is scaled to
+    # this machine's own start-up and training time, and every attempt also carries a backstop (a completed
+    # checkpoint: 8 for the SRR and program points, which need a cycle boundary, 2 for the random instants), so
+    # that no attempt gets far into the run (at most 5,200 of the 6,000 steps over the 12 named points, 200 per
+    # random instant) and the number of kills does not depend on how fast the machine is.
+    slice_s = training / 40
 
     def delay() -> float:
         return startup + rng.uniform(0.1, 1.0) * slice_s
 
+    def bounded(point: str) -> str:
+        return point if point.startswith("checkpoint.") else f"{point},checkpoint.after_manifest:8"
+
     # The named fail points go first, so that every one of them is armed before the run can finish.
-    schedule = [(p, delay()) for p in points] + [("checkpoint.after_manifest:1", delay()) for _ in range(48)]
+    schedule = [(bounded(p), delay()) for p in points] + [("checkpoint.after_manifest:2", delay()) for _ in range(48)]
     kills = 0
     finished = False
     for failpoint, kill_after in schedule:
         started = (run / "config.json").exists()
-        args = ["train", "--resume", str(run), "--quiet"] if started else [*ARGS, "--out", str(run)]
+        args = ["train", "--resume", str(run), "--quiet"] if started else [*KILL_ARGS, "--out", str(run)]
         code = _run(args, failpoint, kill_after)
         if code == 0:
             finished = True
