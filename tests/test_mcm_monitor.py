@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from mira.mcm import MCMConfig, MCMResult, MetacognitiveMonitor, row_fields
-from mira.mcm.records import CycleSnapshot
+from mira.mcm.records import CycleSnapshot, is_improvement
 
 # Typical raw levels and cycle-to-cycle noise of [PEG, TPD, PVC, FAP, RPE].
 CENTER = np.array([-1e-5, 0.1, 0.8, 0.01, 0.5])
@@ -263,3 +263,24 @@ def test_load_rejects_unknown_version() -> None:
     state["version"] = 99
     with pytest.raises(ValueError):
         MetacognitiveMonitor().load_state_dict(state)
+
+
+@pytest.mark.parametrize("ignore", [True, False])
+def test_a_persistent_improvement_is_logged_as_benign_not_triggered(ignore: bool) -> None:
+    """PVC jumps *up* (Φ suddenly tracks return better): anomalous, but not a pathology to reframe."""
+    mon = MetacognitiveMonitor(MCMConfig(ignore_improvements=ignore))
+    res = mon.diagnose_stream(*stream(0, 200, step_at=150, mag=-5.0))
+    late = res[150:]
+    if ignore:
+        # The step is seen at once (151) and logged as benign; a later trigger, if any, must be led by
+        # something else (here noise in PEG can still lead one, as in any healthy stream).
+        assert not late[1].trigger and late[1].benign
+        assert all(not is_improvement(r.contributors[0].metric, r.contributors[0].gradient)
+                   for r in late if r.trigger)
+        flagged = [r for r in late if r.benign]
+        assert flagged and all(r.contributors[0].metric in ("pvc", "rpe") for r in flagged)
+        assert flagged[0].contributors[0].gradient < 0  # the healthy density lies toward a lower PVC
+        assert flagged[0].as_row()["benign"] == 1 and not flagged[0].anomalous
+    else:
+        assert [r.cycle for r in late if r.trigger] == [151]
+        assert not any(r.benign for r in res)

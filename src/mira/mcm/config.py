@@ -80,6 +80,13 @@ class MCMConfig:
     withholds insertion while the monitor is in the anomalous (post-trigger) state, so a pathology
     that SRR could not fix is not learned as "healthy" just because the return still rises."""
 
+    ignore_improvements: bool = True
+    """A persistent anomaly whose top contributor (largest |∇ log p|) reads as an *improvement* — Φ unusually tightly
+    coupled to return (PVC high), residual unusually low (RPE low) — raises no trigger; it is logged
+    (``benign`` in diagnostics.csv). Algorithm 1 is two-sided, but SRR then steers along ∇ log p back
+    toward the healthy density, i.e. toward a *worse* PVC or RPE: it would accept edits that undo the
+    improvement. False: the paper's two-sided trigger."""
+
     hyst_fraction: float = 0.5
     """Hysteresis margin as a fraction of the score spread: ``Δ_hyst = hyst_fraction ·
     (τ_trigger - median(S_hist))``. Scale-free on purpose: S is in nats, but its spread depends

@@ -42,6 +42,7 @@ from mira.mcm.records import (
     CycleSnapshot,
     FloatArray,
     MCMResult,
+    is_improvement,
     reading,
     row_fields,
 )
@@ -241,7 +242,7 @@ class MetacognitiveMonitor:
             self.anomalous = False
 
         # Lines 12-19: cooldown, then persistence.
-        trigger = False
+        trigger = benign = False
         in_cooldown = False
         gradient = zero_grad
         contributors: list[Contributor] = []
@@ -249,15 +250,19 @@ class MetacognitiveMonitor:
             self.cooldown -= 1
             in_cooldown = True
         elif self.above >= c.n_consecutive and not self.anomalous and hist.size >= c.min_scores:
-            trigger = True
             grad = self.model.grad_log_density(d)
             gradient = {n: float(v) for n, v in zip(METRIC_NAMES, grad, strict=True)}
             contributors = [
                 Contributor(METRIC_NAMES[i], float(d[i]), float(grad[i]), reading(METRIC_NAMES[i], grad[i]))
                 for i in top_contributors(grad, c.top_m)
             ]
-            self.cooldown = c.k_cool
-            self.anomalous = True
+            # The largest pull decides: an improvement there is not a pathology to reframe.
+            benign = c.ignore_improvements and bool(contributors) and is_improvement(contributors[0].metric,
+                                                                                    contributors[0].gradient)
+            if not benign:
+                trigger = True
+                self.cooldown = c.k_cool
+                self.anomalous = True
 
         return MCMResult(
             **common,
@@ -275,6 +280,7 @@ class MetacognitiveMonitor:
             inserted=inserted,
             gradient=gradient,
             contributors=contributors,
+            benign=benign,
         )
 
     def diagnose_stream(

@@ -34,6 +34,16 @@ READINGS: dict[str, tuple[str, str]] = {
 }
 
 
+# (metric, sign of ∇ log p) pairs whose deviation is an improvement, not a pathology: the healthy
+# density lies toward a lower PVC or a higher RPE only when the current one is better than usual.
+IMPROVEMENTS: frozenset[tuple[str, int]] = frozenset({("pvc", -1), ("rpe", 1)})
+
+
+def is_improvement(metric: str, gradient: float) -> bool:
+    """Whether a contributor's deviation reads as an improvement (see ``MCMConfig.ignore_improvements``)."""
+    return (metric, 1 if gradient > 0 else -1) in IMPROVEMENTS
+
+
 def reading(metric: str, gradient: float) -> str:
     """One-line human reading of a metric whose healthy direction has sign ``gradient``."""
     up, down = READINGS[metric]
@@ -152,9 +162,11 @@ class MCMResult:
     smoothed_return: float
     factor_ids_changed: bool = False
     gradient: dict[str, float] = field(default_factory=dict)
-    """∇ log p_healthy(d) by metric; all zeros unless ``trigger``."""
+    """∇ log p_healthy(d) by metric; all zeros unless ``trigger`` or ``benign``."""
     contributors: list[Contributor] = field(default_factory=list)
-    """Top-m metrics by |∇| on a trigger; empty otherwise."""
+    """Top-m metrics by |∇| on a trigger (or a benign anomaly); empty otherwise."""
+    benign: bool = False
+    """A persistent anomaly that would have triggered, led by an improvement: no trigger."""
 
     def as_row(self) -> dict[str, Any]:
         """Flat row for ``diagnostics.csv``; the keys are exactly :func:`row_fields`."""
@@ -175,6 +187,7 @@ class MCMResult:
                 "q": self.q,
                 "above": self.above,
                 "trigger": int(self.trigger),
+                "benign": int(self.benign),
                 "anomalous": int(self.anomalous),
                 "in_cooldown": int(self.in_cooldown),
                 "cooldown_left": self.cooldown_left,
@@ -219,6 +232,7 @@ def row_fields(metric_names: tuple[str, ...] = METRIC_NAMES) -> list[str]:
         "q",
         "above",
         "trigger",
+        "benign",
         "anomalous",
         "in_cooldown",
         "cooldown_left",
