@@ -13,10 +13,13 @@ mean entropy, mean attention), standardises and smooths them, and runs Algorithm
 5. if the cooldown is running: count it down, no trigger; elif ``u ≥ N_consecutive``: trigger,
    compute ``∇ log p`` and the top-m contributors, start the cooldown (K_cool).
 
-Two documented additions: a trigger also needs ``min_scores`` real scores (see ``MCMConfig``), and
-the hysteresis of section 4.3.2 — after a trigger the monitor stays *anomalous* until
+Documented additions: a trigger also needs ``min_scores`` real scores (see ``MCMConfig``); the
+hysteresis of section 4.3.2 — after a trigger the monitor stays *anomalous* until
 ``S < τ_release = τ - Δ_hyst``; no new trigger is raised while anomalous, so one persistent
-pathology raises one trigger, not one per cooldown period.
+pathology raises one trigger, not one per cooldown period; vectors from before the standardiser
+has ``min_history`` values never enter the healthy buffer; τ is taken over the last
+``score_window`` scores; and an anomaly led by an improvement (``ignore_improvements``) is logged
+as benign instead of triggering.
 
 The cooldown is owned here. The trainer must act on ``result.trigger`` alone (Algorithm 3's
 "trigger and c_cool = 0" is already folded in) and report the SRR outcome through
