@@ -47,7 +47,7 @@ def run_ours(method: str, algo: str, seed: int, steps: int, out: Path, extra: li
 
 
 def run_sb3(seed: int, steps: int, learning_starts: int, eval_every: int, eval_episodes: int,
-            out: Path) -> dict[str, object]:
+            out: Path, lr: float = 1e-4) -> dict[str, object]:
     import torch
     from stable_baselines3 import SAC
 
@@ -60,7 +60,7 @@ def run_sb3(seed: int, steps: int, learning_starts: int, eval_every: int, eval_e
     import gymnasium as gym
 
     env = gym.make(card.env_id)
-    model = SAC("MlpPolicy", env, learning_rate=1e-4, buffer_size=1_000_000, learning_starts=learning_starts,
+    model = SAC("MlpPolicy", env, learning_rate=lr, buffer_size=1_000_000, learning_starts=learning_starts,
                 batch_size=256, tau=0.005, gamma=0.99, train_freq=1, gradient_steps=1, ent_coef="auto",
                 policy_kwargs={"net_arch": [256, 256]}, seed=seed, device="cpu", verbose=0)
     eval_env = make_env(card, seed=seed + EVAL_SEED_OFFSET)
@@ -141,17 +141,18 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=ROOT / "bench" / "runs" / "learning")
     p.add_argument("--train-args", default="", help="extra flags for mira train")
+    p.add_argument("--lr", type=float, default=1e-4, help="every optimiser's learning rate (Table 1: 1e-4)")
     p.add_argument("--table-only", action="store_true", help="only rebuild the table from the run directories")
     p.add_argument("--commit", default=os.environ.get("MIRA_COMMIT", ""), help="commit to name in the table")
     args = p.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
-    extra = ["--learning-starts", str(args.learning_starts), "--eval-every", str(args.eval_every),
+    extra = ["--learning-starts", str(args.learning_starts), "--lr", str(args.lr), "--eval-every", str(args.eval_every),
              "--eval-episodes", str(args.eval_episodes), *args.train_args.split()]
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.table_only:
         with ProcessPoolExecutor(args.workers) as pool:
             jobs = [pool.submit(run_sb3, seed, args.steps, args.learning_starts, args.eval_every, args.eval_episodes,
-                                args.out) for seed in (seeds if args.sb3 else [])]
+                                args.out, args.lr) for seed in (seeds if args.sb3 else [])]
             for method in args.methods.split(","):
                 for seed in seeds:
                     jobs.append(pool.submit(run_ours, method, args.algo, seed, args.steps, args.out, extra))
@@ -161,7 +162,8 @@ def main() -> None:
                                            cwd=ROOT).stdout.strip()
     header = [
         f"HalfCheetah-v5, {args.algo.upper()}, {args.steps} steps, seeds {args.seeds}, learning starts "
-        f"{args.learning_starts}, eval every {args.eval_every} steps x {args.eval_episodes} episodes; figure = mean "
+        f"{args.learning_starts}, lr {args.lr:g}, eval every {args.eval_every} steps x {args.eval_episodes} episodes; "
+        "figure = mean "
         "eval return over the final 10% of the steps reached.",
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, 1 torch thread per run, "
         f"{args.workers} runs in parallel; commit {commit}; extra train flags: {args.train_args or 'none'}.",
