@@ -26,10 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
+from mira.experiments.metrics import asymptotic_performance
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_ours(method: str, algo: str, seed: int, steps: int, out: Path, extra: list[str]) -> dict[str, object]:
+def run_ours(method: str, algo: str, seed: int, steps: int, out: Path, extra: list[str]) -> None:
+    """One `mira train` run; its curve is the run directory's own eval.csv."""
     run = out / f"{method}-{algo}-s{seed}"
     if (run / "config.json").exists():  # an interrupted benchmark resumes its runs
         cmd = [sys.executable, "-m", "mira.cli", "train", "--resume", str(run), "--quiet"]
@@ -37,17 +40,12 @@ def run_ours(method: str, algo: str, seed: int, steps: int, out: Path, extra: li
         cmd = [sys.executable, "-m", "mira.cli", "train", "--task", "halfcheetah", "--method", method, "--algo", algo,
                "--steps", str(steps), "--seed", str(seed), "--out", str(run), "--overwrite", "--threads", "1",
                "--quiet", *extra]
-    t0 = time.time()
     subprocess.run(cmd, check=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL)
-    from mira.runio.csvlog import read_csv
-
-    rows = read_csv(run / "eval.csv")
-    return {"who": f"mira {method}", "algo": algo, "seed": seed, "wall_s": time.time() - t0,
-            "curve": [(int(r["step"]), float(r["return_mean"])) for r in rows]}
 
 
 def run_sb3(seed: int, steps: int, learning_starts: int, eval_every: int, eval_episodes: int,
-            out: Path, lr: float = 1e-4) -> dict[str, object]:
+            out: Path, lr: float = 1e-4) -> None:
+    """SB3's SAC on the dense reward, its curve written to ``<out>/sb3-sac-s<seed>/eval.csv`` as it goes."""
     import torch
     from stable_baselines3 import SAC
 
@@ -77,22 +75,13 @@ def run_sb3(seed: int, steps: int, learning_starts: int, eval_every: int, eval_e
     (run / "eval.csv").unlink(missing_ok=True)
     log = CsvLog(run / "eval.csv", ["step", "return_mean", "return_std", "wall_s"])
     t0 = time.time()
-    curve = []
     done = 0
     while done < steps:
         chunk = min(eval_every, steps - done)
         model.learn(total_timesteps=chunk, reset_num_timesteps=False)
         done += chunk
         result = evaluate(Policy(), eval_env, eval_episodes, seed + EVAL_SEED_OFFSET)  # type: ignore[arg-type]
-        curve.append((done, result.mean))
         log.append({"step": done, "return_mean": result.mean, "return_std": result.std, "wall_s": time.time() - t0})
-    return {"who": "sb3 SAC", "algo": "sac", "seed": seed, "wall_s": time.time() - t0, "curve": curve}
-
-
-def final_return(curve: list[tuple[int, float]], steps: int) -> float:
-    """Asymptotic performance: mean eval return over the final 10% of training (at least the last)."""
-    tail = [r for s, r in curve if s > 0.9 * steps] or [curve[-1][1]]
-    return float(np.mean(tail))
 
 
 def collect(out: Path) -> dict[str, list[tuple[int, list[tuple[int, float]], float]]]:
@@ -118,7 +107,8 @@ def table(out: Path, steps: int, header: list[str]) -> str:
     lines = [*header, "", "| method | final return (mean ± std over seeds) | per-seed | steps reached | wall s / run |",
              "|---|---|---|---|---|"]
     for who, runs in collect(out).items():
-        finals = [final_return(curve, max(s for s, _ in curve)) for _, curve, _ in runs]
+        finals = [asymptotic_performance([s for s, _ in curve], [r for _, r in curve], max(s for s, _ in curve))
+                  for _, curve, _ in runs]
         reached = sorted({max(s for s, _ in curve) for _, curve, _ in runs})
         walls = [w for _, _, w in runs if np.isfinite(w)]
         wall = f"{np.mean(walls):.0f}" if walls else "-"

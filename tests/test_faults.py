@@ -63,8 +63,7 @@ def _timed_reference(out: Path) -> tuple[float, float]:
     """Run the reference to completion; return (start-up seconds, training seconds) as this machine measures them."""
     started = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "mira.cli", *KILL_ARGS, "--out", str(out)], capture_output=True,
-                          text=True,
-                          timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+                          text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
     wall = time.monotonic() - started
     assert proc.returncode == 0, proc.stderr[-2000:]
     match = re.search(r"finished \d+ steps in ([0-9.]+) s", proc.stdout)
