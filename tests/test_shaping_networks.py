@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mira.shaping.factors import META_DIM
 from mira.shaping.networks import FactorAttentionBlock, TemporalContextEncoder, attention_entropy
@@ -29,19 +31,43 @@ def _inputs(b: int, k: int, seed: int = 1) -> tuple[torch.Tensor, ...]:
 def test_attention_is_permutation_invariant(k: int) -> None:
     fab = _fab()
     x, obs, ids, meta = _inputs(9, k)
-    v, alpha, _ = fab(x, obs, ids, meta)
+    v, alpha = fab(x, obs, ids, meta)
     perm = torch.randperm(k, generator=torch.Generator().manual_seed(k))
-    v_p, alpha_p, _ = fab(x[:, perm], obs, ids[perm], meta[perm])
+    v_p, alpha_p = fab(x[:, perm], obs, ids[perm], meta[perm])
     torch.testing.assert_close(v_p, v, rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(alpha_p, alpha[:, perm], rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(alpha.sum(-1), torch.ones(9))
     assert torch.isfinite(attention_entropy(alpha)).all()
 
 
+@settings(max_examples=40, deadline=None)
+@given(k=st.integers(0, 12), b=st.integers(1, 9), seed=st.integers(0, 2**16), masked=st.booleans())
+def test_fast_forward_equals_the_literal_definition(k: int, b: int, seed: int, masked: bool) -> None:
+    """``forward`` (no per-factor W_2, folded score map) is the paper's FAB: same v, α and gradients."""
+    fab = _fab(seed % 7).double()
+    x, obs, ids, meta = (t.double() for t in _inputs(b, k, seed))
+    x.requires_grad_(True)
+    mask = torch.rand(b, k, generator=torch.Generator().manual_seed(seed)) > 0.3 if masked else None
+    v, alpha = fab(x, obs, ids, meta, mask)
+    v_ref, alpha_ref, _ = fab.reference(x, obs, ids, meta, mask)
+    torch.testing.assert_close(v, v_ref, rtol=1e-9, atol=1e-10)
+    torch.testing.assert_close(alpha, alpha_ref, rtol=1e-9, atol=1e-10)
+    w = torch.randn(v.shape, generator=torch.Generator().manual_seed(seed + 1), dtype=torch.float64)
+    params = [x, *fab.parameters()]
+    grads = torch.autograd.grad((v * w).sum(), params, allow_unused=True)
+    grads_ref = torch.autograd.grad((v_ref * w).sum(), params, allow_unused=True)
+    for g, g_ref in zip(grads, grads_ref, strict=True):
+        if g is None or g_ref is None:
+            assert (g is None or not g.any()) and (g_ref is None or not g_ref.any())
+        else:
+            torch.testing.assert_close(g, g_ref, rtol=1e-8, atol=1e-10)
+
+
 def test_single_factor_gets_all_attention() -> None:
     fab = _fab()
     x, obs, ids, meta = _inputs(4, 1)
-    v, alpha, z = fab(x, obs, ids, meta)
+    v, alpha = fab(x, obs, ids, meta)
+    z = fab.embed(x, ids, meta)
     assert torch.equal(alpha, torch.ones(4, 1))
     torch.testing.assert_close(v, z[:, 0])
     torch.testing.assert_close(attention_entropy(alpha), torch.zeros(4))
@@ -53,8 +79,8 @@ def test_masking_a_factor_equals_dropping_it() -> None:
     keep = torch.tensor([0, 2, 3, 5, 6, 7, 9, 11])
     mask = torch.zeros(12, dtype=torch.bool)
     mask[keep] = True
-    v_m, a_m, _ = fab(x, obs, ids, meta, mask)
-    v_d, a_d, _ = fab(x[:, keep], obs, ids[keep], meta[keep])
+    v_m, a_m = fab(x, obs, ids, meta, mask)
+    v_d, a_d = fab(x[:, keep], obs, ids[keep], meta[keep])
     torch.testing.assert_close(v_m, v_d, rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(a_m[:, keep], a_d, rtol=1e-5, atol=1e-6)
     assert torch.all(a_m[:, ~mask] == 0)
@@ -63,10 +89,10 @@ def test_masking_a_factor_equals_dropping_it() -> None:
     row_mask = torch.rand(6, 12, generator=torch.Generator().manual_seed(3)) > 0.5
     row_mask[:, 0] = True
     row_mask[5] = False  # a row with nothing present: no attention, v = 0, no NaN
-    v_r, a_r, _ = fab(x, obs, ids, meta, row_mask)
+    v_r, a_r = fab(x, obs, ids, meta, row_mask)
     for i in range(5):
         cols = row_mask[i].nonzero().squeeze(1)
-        v_i, _, _ = fab(x[i : i + 1, cols], obs[i : i + 1], ids[cols], meta[cols])
+        v_i, _ = fab(x[i : i + 1, cols], obs[i : i + 1], ids[cols], meta[cols])
         torch.testing.assert_close(v_r[i : i + 1], v_i, rtol=1e-5, atol=1e-6)
     assert torch.all(a_r[5] == 0) and torch.all(v_r[5] == 0)
     assert torch.isfinite(v_r).all()
@@ -78,18 +104,18 @@ def test_masked_factor_values_do_not_matter_and_gradients_stay_finite() -> None:
     mask = torch.tensor([True, False, True, True])
     x2 = x.clone()
     x2[:, 1] = 1e6
-    v1, _, _ = fab(x, obs, ids, meta, mask)
-    v2, _, _ = fab(x2, obs, ids, meta, mask)
+    v1, _ = fab(x, obs, ids, meta, mask)
+    v2, _ = fab(x2, obs, ids, meta, mask)
     torch.testing.assert_close(v1, v2)
     none = torch.zeros(4, dtype=torch.bool)
-    v0, _, _ = fab(x, obs, ids, meta, none)
+    v0, _ = fab(x, obs, ids, meta, none)
     v0.sum().backward()
     assert all(p.grad is None or torch.isfinite(p.grad).all() for p in fab.parameters())
 
 
 def test_zero_factors_give_zero_aggregation() -> None:
     fab = _fab()
-    v, alpha, _ = fab(torch.zeros(3, 0), torch.randn(3, OBS), torch.zeros(0, 8), torch.zeros(0, META_DIM))
+    v, alpha = fab(torch.zeros(3, 0), torch.randn(3, OBS), torch.zeros(0, 8), torch.zeros(0, META_DIM))
     assert v.shape == (3, 16) and alpha.shape == (3, 0) and torch.all(v == 0)
 
 

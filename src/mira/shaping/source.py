@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mira.agents.networks import make_adam
+from mira.agents.networks import AdamStepper, make_adam
 from mira.replay import Batch
 from mira.rewards.base import RewardContext, RewardSource
 from mira.shaping.config import HarsConfig
@@ -65,7 +65,13 @@ from mira.shaping.factors import (
     RunningStats,
     meta_features,
 )
-from mira.shaping.networks import FactorAttentionBlock, TemporalContextEncoder, ValuePotential, attention_entropy
+from mira.shaping.networks import (
+    FactorAttentionBlock,
+    TemporalContextEncoder,
+    ValuePotential,
+    attention_entropy,
+    potential_no_grad,
+)
 
 STD_FLOOR = 1e-4
 BASE_LOG_FIELDS = ("phi_mean", "phi_std", "l_align", "l_aux", "attn_entropy", "rpe")
@@ -177,6 +183,7 @@ class HarsReward(RewardSource):
         old = getattr(self, "opt", None)
         params = [*self.fab.parameters(), *self.vpm.parameters(), *self.tce.parameters()]
         self.opt = make_adam(params, cfg.lr)
+        self._stepper = AdamStepper(self.opt)  # the same fused Adam step without Optimizer.step's Python
         if keep_tce_state and old is not None:
             for p in self.tce.parameters():
                 if p in old.state:
@@ -248,16 +255,25 @@ class HarsReward(RewardSource):
                 torch.from_numpy(meta.astype(np.float32)).to(dev), torch.from_numpy(o_mean.astype(np.float32)).to(dev),
                 torch.from_numpy(o_std.astype(np.float32)).to(dev))
 
+    def _normalise(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...]
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Normalised, clipped factor values ``x`` and observations ``o``: the networks' inputs."""
+        f_mean, f_std, _, o_mean, o_std = norm
+        c = self.config.input_clip
+        return ((f - f_mean) / f_std).clamp_(-c, c), ((obs - o_mean) / o_std).clamp_(-c, c)
+
+    def _potential_no_grad(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...]) -> torch.Tensor:
+        """Φ of every row, without a graph (the shaping of a batch HARS does not train on)."""
+        x, o = self._normalise(f, obs, norm)
+        return potential_no_grad(self.fab, self.vpm, x, o, self.fab.ids(self._slot_t), norm[2]) * self.phi_scale
+
     def _forward(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...],
                  ids: torch.Tensor | None = None, n_phi: int | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Φ ``[n_phi]``, v ``[N, d_z]`` and α ``[N, K]`` from raw factor values and raw observations
         (Φ only for the first ``n_phi`` rows, default all)."""
-        f_mean, f_std, meta, o_mean, o_std = norm
-        c = self.config.input_clip
-        x = ((f - f_mean) / f_std).clamp_(-c, c)
-        o = ((obs - o_mean) / o_std).clamp_(-c, c)
-        v, alpha, _ = self.fab(x, o, self.fab.ids(self._slot_t) if ids is None else ids, meta)
+        x, o = self._normalise(f, obs, norm)
+        v, alpha = self.fab(x, o, self.fab.ids(self._slot_t) if ids is None else ids, norm[2])
         scale = self.phi_scale
         if n_phi is None:
             return self.vpm(v, o) * scale, v, alpha
@@ -290,7 +306,7 @@ class HarsReward(RewardSource):
             obs = torch.cat([obs, self.ctx.buffer.obs[flat].to(self.device)])
         if not track:
             with torch.no_grad():
-                phi, _, _ = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
+                phi = self._potential_no_grad(f.to(self.device), obs, self._norm())
             return batch.reward + self.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b]
         phi, v_all, alpha_all = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
         v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
@@ -342,8 +358,8 @@ class HarsReward(RewardSource):
         if cfg.max_grad_norm is not None:
             torch.nn.utils.clip_grad_norm_([p for g in self.opt.param_groups for p in g["params"]],
                                            cfg.max_grad_norm)
-        self.opt.step()
-        self.opt.zero_grad(set_to_none=True)
+        self._stepper.step()
+        self._stepper.zero_grad()
         self.updates += 1
         self.calls += 1
         with torch.no_grad():
