@@ -10,7 +10,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mira.shaping.factors import META_DIM
-from mira.shaping.networks import FactorAttentionBlock, TemporalContextEncoder, attention_entropy
+from mira.shaping.networks import (
+    FactorAttentionBlock,
+    TemporalContextEncoder,
+    ValuePotential,
+    attention_entropy,
+    potential_no_grad,
+)
 from mira.shaping.testing import fill_episodes, make_hars, toy_factors
 
 OBS = 7
@@ -61,6 +67,17 @@ def test_fast_forward_equals_the_literal_definition(k: int, b: int, seed: int, m
             assert (g is None or not g.any()) and (g_ref is None or not g_ref.any())
         else:
             torch.testing.assert_close(g, g_ref, rtol=1e-8, atol=1e-10)
+
+
+@settings(max_examples=25, deadline=None)
+@given(k=st.integers(0, 12), b=st.integers(1, 9), seed=st.integers(0, 2**16))
+def test_no_grad_potential_equals_the_modules(k: int, b: int, seed: int) -> None:
+    """The shaping path's Φ (W_2 folded into the VPM) is ``vpm(fab(...))`` for any number of factors."""
+    fab = _fab(seed % 7).double()
+    vpm = ValuePotential(16, OBS, hidden=16).double()
+    x, obs, ids, meta = (t.double() for t in _inputs(b, k, seed))
+    expected = vpm(fab(x, obs, ids, meta)[0], obs)
+    torch.testing.assert_close(potential_no_grad(fab, vpm, x, obs, ids, meta), expected, rtol=1e-9, atol=1e-10)
 
 
 def test_single_factor_gets_all_attention() -> None:

@@ -163,15 +163,13 @@ def potential_no_grad(fab: FactorAttentionBlock, vpm: ValuePotential, x: torch.T
     gradient: the same Φ with fewer passes over memory.
 
     Besides :meth:`FactorAttentionBlock.forward`'s folding, the FAB's output layer ``W_2`` is folded
-    into the VPM's first layer (``V_1 v = (V_1 W_2) Σ α_i h_i + (Σ α_i) V_1 b_2``), activations are
-    applied in place, and α is never renormalised for a mask (there is none in this path). This runs
+    into the VPM's first layer (``V_1 v = (V_1 W_2) Σ α_i h_i + (Σ α_i) V_1 b_2``), the pooling and the
+    VPM's activations work in place, and α is never renormalised for a mask (there is none in this path). This runs
     on every sampled batch, so it is most of HARS's cost per training step.
     """
     if vpm.state_proj is not None or x.shape[-1] == 0:
         return vpm(fab(x, obs, ids, meta)[0], obs)
-    ctx = fab.factor_ctx(torch.cat([ids, meta], dim=-1))
-    h = torch.addcmul(ctx[:, fab.hidden :], x.unsqueeze(-1), ctx[:, : fab.hidden])  # [B, K, H]
-    F.silu(h, inplace=True)
+    h = fab.hidden_embed(x, ids, meta)  # [B, K, H]
     a_map, a_bias = fab.score_map()
     g = torch.addmm(a_bias, fab.query_hidden(obs), a_map)  # [B, H]
     alpha = torch.softmax((h * g.unsqueeze(1)).sum(-1), dim=-1)  # [B, K]
