@@ -66,11 +66,38 @@ def test_relabel_uses_the_current_potential() -> None:
     with torch.no_grad():
         before = src.relabel(batch)
         src.vpm.mlp[-1].bias.add_(1.0)  # Φ ← Φ + σ_R: shaped reward moves by σ_R (γ·(1 − d) − 1)
+        src.weights_changed()  # an edit outside ``update`` says so (the shaping caches derived tensors)
         after = src.relabel(batch)
     unit = src.phi_scale
     assert unit > 1.0  # the episode's return set the unit Φ is learned in
     torch.testing.assert_close(after - before, unit * (src.gamma * (1 - batch.terminated) - 1.0), rtol=1e-4,
                                atol=1e-4)
+
+
+def test_relabel_after_a_training_step_uses_the_new_weights_and_statistics() -> None:
+    """Between two HARS training steps Φ is one fixed function (weights and input statistics); after a
+    step the shaping of any batch is the updated modules' own Φ, not a stale cached one."""
+    src, buf = make_hars(toy_factors(), config=HarsConfig(lr=1e-2, update_every=1))  # σ_R moves too
+    rng = np.random.default_rng(1)
+    fill_episodes(src, buf, [40], rng)
+    batch, probe = buf.sample(32, rng), buf.sample(16, rng)
+    with torch.no_grad():
+        before = src.relabel(probe)
+    fill_episodes(src, buf, [40], rng)  # the running statistics move
+    with torch.no_grad():
+        assert torch.equal(src.relabel(probe), before)  # no training step: the same Φ
+    src.relabel(batch)
+    src.update(batch, 0)
+    with torch.no_grad():
+        after = src.relabel(probe)
+        b = probe.reward.shape[0]
+        f = torch.cat([src.col_phi[torch.from_numpy(probe.indices)], src.col_phi_next[torch.from_numpy(probe.indices)]])
+        norm = src._norm()
+        assert torch.equal(norm[0], torch.from_numpy(src.factor_stats.mean.astype(np.float32)))  # fresh snapshot
+        phi = src._forward(f, torch.cat([probe.obs, probe.next_obs]), norm)[0]
+    want = probe.reward + src.gamma * (1 - probe.terminated) * phi[b:] - phi[:b]
+    torch.testing.assert_close(after, want, rtol=1e-5, atol=1e-5)
+    assert not torch.allclose(after, before)
 
 
 def test_terminal_penalty_pulls_terminal_potential_to_zero() -> None:

@@ -24,6 +24,7 @@ from mira.agents import Agent, make_agent
 from mira.errors import CheckpointError, NonFiniteError
 from mira.loop.evaluation import EvalResult, collect_rollout, evaluate
 from mira.loop.hooks import CycleContext, CycleHook
+from mira.loop.metrics import MetricSums
 from mira.loop.rollout import Rollout
 from mira.replay import ReplayBuffer
 from mira.rewards.base import RewardContext, RewardSource
@@ -117,8 +118,7 @@ class Trainer:
             self._obs, _ = self.env.reset(seed=s.seed)
         obs = self._obs
         device = s.device
-        sums: dict[str, torch.Tensor] = {}
-        n_updates = 0
+        sums = MetricSums()
         t_start = time.perf_counter()
         t_window, step_window = t_start, self.step
         bar = tqdm(total=s.steps, initial=self.step, disable=s.quiet, unit="step", dynamic_ncols=True, smoothing=0.05)
@@ -145,11 +145,8 @@ class Trainer:
                 ).to(device)
                 metrics = self.agent.update(batch, self.reward.relabel(batch))
                 metrics.update(self.reward.update(batch, self.step))
-                if not bool(torch.isfinite(torch.cat([v.float().reshape(-1) for v in metrics.values()])).all()):
+                if not sums.add(metrics):
                     self._non_finite(metrics)
-                for k, v in metrics.items():
-                    sums[k] = sums[k] + v if k in sums else v.clone()
-                n_updates += 1
 
             if self.step % s.eval_every == 0 or self.step == s.steps:
                 self.last_eval = evaluate(self.agent, self.eval_env, s.eval_episodes, s.seed + EVAL_SEED_OFFSET)
@@ -175,12 +172,12 @@ class Trainer:
                 t_window, step_window = now, self.step
                 row_out: dict[str, Any] = {"step": self.step, "episodes": self.episode, "steps_per_s": round(sps, 2),
                            "train_return": self.recent_returns[-1] if self.recent_returns else ""}
-                row_out.update({k: float(v) / n_updates for k, v in sums.items()} if n_updates else {})
+                row_out.update(sums.means())
                 train_log.append(row_out)
                 for k, v in row_out.items():
                     if isinstance(v, float | int) and k != "step":
                         tb.add_scalar(f"train/{k}", v, self.step)
-                sums, n_updates = {}, 0
+                sums.clear()
                 postfix["sps"] = f"{sps:.0f}"
                 bar.set_postfix(postfix, refresh=False)
             bar.update(1)
@@ -211,7 +208,7 @@ class Trainer:
         parameters are already poisoned), so the policy is to stop the run cleanly: nothing after the
         last checkpoint is kept, and the message names the step and every non-finite quantity.
         """
-        bad = sorted(k for k, v in metrics.items() if not bool(torch.isfinite(v).all()))
+        bad = MetricSums.non_finite(metrics)
         raise NonFiniteError(
             f"step {self.step}: non-finite {', '.join(bad)} (episode {self.episode}); the run stopped and its last "
             f"checkpoint is intact: lower the learning rate or check the reward program, then --resume"

@@ -42,7 +42,7 @@ class HarsConfig:
     small sequential ops that cost more than the rest of HARS on a CPU; every 4th update on 64 rows
     keeps the auxiliary signal (16 windows per update on average) at a fraction of the cost.
     1 = every update, as in Algorithm 3."""
-    update_every: int = 4
+    update_every: int = 8
     """Train (ϕ, φ, ψ) on every this many agent updates; Φ is evaluated afresh for every sampled batch
     all the same (the shaped reward always uses the current Φ). One HARS training step costs about four
     times the forward pass the shaping needs, so training on every 4th batch keeps HARS near the issue's

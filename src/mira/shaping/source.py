@@ -67,10 +67,10 @@ from mira.shaping.factors import (
 )
 from mira.shaping.networks import (
     FactorAttentionBlock,
+    FrozenPotential,
     TemporalContextEncoder,
     ValuePotential,
     attention_entropy,
-    potential_no_grad,
 )
 
 STD_FLOOR = 1e-4
@@ -88,6 +88,18 @@ class _Pending:
     leaf: torch.Tensor | None  # detached copy of phi the agent backpropagated into (joint mode)
     v_ctx: torch.Tensor | None  # [n, W-1, d_z] TCE context aggregations, with graph
     ctx_valid: torch.Tensor | None  # [n, W-1] bool
+
+
+@dataclass
+class _InputSnapshot:
+    """What Φ reads besides its weights, frozen at the first use after each weight change: the input
+    normalisation statistics (floored standard deviations) and σ_R, the unit Φ is learned in."""
+
+    f_mean: np.ndarray
+    f_std: np.ndarray
+    o_mean: np.ndarray
+    o_std: np.ndarray
+    unit: float
 
 
 def _name_seed(*parts: object) -> int:
@@ -123,6 +135,11 @@ class HarsReward(RewardSource):
         self._pending: _Pending | None = None
         self._bound = False
         self._last_l_aux = torch.zeros(())
+        # Φ's input statistics as of its latest weights (see ``_norm``) and the no-grad potential built
+        # from those weights; both are dropped whenever the weights change.
+        self._snapshot: _InputSnapshot | None = None
+        self._norm_cache: tuple[torch.Tensor, ...] | None = None
+        self._frozen: FrozenPotential | None = None
 
     # --------------------------------------------------------------------------------- set-up
     def bind(self, ctx: RewardContext) -> None:
@@ -189,6 +206,14 @@ class HarsReward(RewardSource):
                 if p in old.state:
                     self.opt.state[p] = old.state[p]
         self._pending = None
+        self.weights_changed()
+
+    def weights_changed(self) -> None:
+        """Forget what was derived from the previous weights: the input-statistics snapshot and the
+        no-grad potential. The next use takes both afresh."""
+        self._snapshot = None
+        self._norm_cache = None
+        self._frozen = None
 
     # ------------------------------------------------------------------------- factor columns
     @property
@@ -245,15 +270,33 @@ class HarsReward(RewardSource):
 
     # ------------------------------------------------------------------------------- forward
     def _norm(self) -> tuple[torch.Tensor, ...]:
-        """Normalisation tensors of factors and observations and the metadata matrix, on the device."""
-        f_mean, f_std = self.factor_stats.mean, np.maximum(self.factor_stats.std, STD_FLOOR)
-        meta = np.concatenate([self._meta_static, np.stack([np.sign(f_mean) * np.log1p(np.abs(f_mean)),
-                                                            np.log1p(f_std)], axis=1)], axis=1)
-        o_mean, o_std = self.obs_stats.mean, np.maximum(self.obs_stats.std, STD_FLOOR)
-        dev = self.device
-        return (torch.from_numpy(f_mean.astype(np.float32)).to(dev), torch.from_numpy(f_std.astype(np.float32)).to(dev),
-                torch.from_numpy(meta.astype(np.float32)).to(dev), torch.from_numpy(o_mean.astype(np.float32)).to(dev),
-                torch.from_numpy(o_std.astype(np.float32)).to(dev))
+        """Normalisation tensors of factors and observations and the metadata matrix, on the device.
+
+        The running statistics (and σ_R) move with every stored transition, but Φ reads a snapshot
+        of them taken at the first use after each change of Φ's weights: they are part of the
+        potential, so Φ is one fixed function between two HARS training steps (the shaping of every
+        batch in between evaluates that same function, and its derived tensors are built once). The
+        snapshot is checkpointed so a resumed run uses the same one.
+        """
+        if self._norm_cache is None:
+            if self._snapshot is None:
+                self._snapshot = _InputSnapshot(
+                    self.factor_stats.mean.copy(), np.maximum(self.factor_stats.std, STD_FLOOR),
+                    self.obs_stats.mean.copy(), np.maximum(self.obs_stats.std, STD_FLOOR), self.phi_scale)
+            snap = self._snapshot
+            f_mean, f_std, o_mean, o_std = snap.f_mean, snap.f_std, snap.o_mean, snap.o_std
+            meta = np.concatenate([self._meta_static, np.stack([np.sign(f_mean) * np.log1p(np.abs(f_mean)),
+                                                                np.log1p(f_std)], axis=1)], axis=1)
+            dev = self.device
+            self._norm_cache = tuple(torch.from_numpy(np.asarray(a, dtype=np.float32)).to(dev)
+                                     for a in (f_mean, f_std, meta, o_mean, o_std))
+        return self._norm_cache
+
+    def _unit(self) -> float:
+        """σ_R as of the current weights (the snapshot's, see ``_norm``)."""
+        self._norm()
+        assert self._snapshot is not None
+        return self._snapshot.unit
 
     def _normalise(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...]
                    ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -262,10 +305,13 @@ class HarsReward(RewardSource):
         c = self.config.input_clip
         return ((f - f_mean) / f_std).clamp_(-c, c), ((obs - o_mean) / o_std).clamp_(-c, c)
 
-    def _potential_no_grad(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...]) -> torch.Tensor:
+    def _potential_no_grad(self, f: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         """Φ of every row, without a graph (the shaping of a batch HARS does not train on)."""
+        norm = self._norm()
+        if self._frozen is None:
+            self._frozen = FrozenPotential(self.fab, self.vpm, self.fab.ids(self._slot_t).detach(), norm[2])
         x, o = self._normalise(f, obs, norm)
-        return potential_no_grad(self.fab, self.vpm, x, o, self.fab.ids(self._slot_t), norm[2]) * self.phi_scale
+        return self._frozen(x, o) * self._unit()
 
     def _forward(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...],
                  ids: torch.Tensor | None = None, n_phi: int | None = None
@@ -274,7 +320,7 @@ class HarsReward(RewardSource):
         (Φ only for the first ``n_phi`` rows, default all)."""
         x, o = self._normalise(f, obs, norm)
         v, alpha = self.fab(x, o, self.fab.ids(self._slot_t) if ids is None else ids, norm[2])
-        scale = self.phi_scale
+        scale = self._unit()
         if n_phi is None:
             return self.vpm(v, o) * scale, v, alpha
         return self.vpm(v[:n_phi], o[:n_phi]) * scale, v, alpha
@@ -292,7 +338,7 @@ class HarsReward(RewardSource):
     def relabel(self, batch: Batch) -> torch.Tensor:
         b = batch.reward.shape[0]
         idx = torch.from_numpy(batch.indices)
-        f = torch.cat([self.col_phi[idx], self.col_phi_next[idx]])
+        f = torch.cat([self.col_phi.index_select(0, idx), self.col_phi_next.index_select(0, idx)])
         obs = torch.cat([batch.obs, batch.next_obs])
         cfg = self.config
         track = torch.is_grad_enabled() and self._trains_now()
@@ -306,7 +352,7 @@ class HarsReward(RewardSource):
             obs = torch.cat([obs, self.ctx.buffer.obs[flat].to(self.device)])
         if not track:
             with torch.no_grad():
-                phi = self._potential_no_grad(f.to(self.device), obs, self._norm())
+                phi = self._potential_no_grad(f.to(self.device), obs)
             return batch.reward + self.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b]
         phi, v_all, alpha_all = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
         v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
@@ -341,7 +387,7 @@ class HarsReward(RewardSource):
         phi_s, phi_n = pending.phi[:b], pending.phi[b:]
         term = batch.terminated
         target = (batch.reward + self.gamma * (1.0 - term) * phi_n).detach()
-        unit = self.phi_scale  # losses in units of σ_R, so they weigh the same on every task
+        unit = self._unit()  # losses in units of σ_R, so they weigh the same on every task
         td = (phi_s - target) / unit
         l_td = td.pow(2).mean()
         l_term = (term * (phi_n / unit).pow(2)).sum() / term.sum().clamp_min(1.0)
@@ -360,6 +406,7 @@ class HarsReward(RewardSource):
                                            cfg.max_grad_norm)
         self._stepper.step()
         self._stepper.zero_grad()
+        self.weights_changed()
         self.updates += 1
         self.calls += 1
         with torch.no_grad():
@@ -415,11 +462,10 @@ class HarsReward(RewardSource):
     def potential(self, obs: np.ndarray | torch.Tensor) -> torch.Tensor:
         """Current Φ(s) of a batch of raw observations ``[B, obs_dim]`` (CPU tensor ``[B]``, no grad)."""
         o = self._as_numpy(obs)
-        norm = self._norm()
         out = []
         for sl in self._chunks(o.shape[0]):
             f = torch.from_numpy(self.factors.phi(o[sl]).astype(np.float32)).to(self.device)
-            out.append(self._forward(f, torch.from_numpy(o[sl]).to(self.device), norm)[0].cpu())
+            out.append(self._potential_no_grad(f, torch.from_numpy(o[sl]).to(self.device)).cpu())
         return torch.cat(out) if out else torch.zeros(0)
 
     @torch.no_grad()
@@ -507,6 +553,7 @@ class HarsReward(RewardSource):
             "opt": self.opt.state_dict(),
             "factor_stats": self.factor_stats.state_dict(),
             "obs_stats": self.obs_stats.state_dict(),
+            "input_snapshot": None if self._snapshot is None else asdict(self._snapshot),
             "columns": {"phi": self.col_phi[:n].clone(), "phi_next": self.col_phi_next[:n].clone(),
                         "aux": self.col_aux[:n].clone()},
         }
@@ -538,6 +585,9 @@ class HarsReward(RewardSource):
         self._last_l_aux = state["last_l_aux"].to(self.device)
         self.factor_stats.load_state_dict(state["factor_stats"])
         self.obs_stats.load_state_dict(state["obs_stats"])
+        self.weights_changed()
+        snap = state.get("input_snapshot")
+        self._snapshot = None if snap is None else _InputSnapshot(**snap)
         cols = state["columns"]
         n = cols["phi"].shape[0]
         self.col_phi[:n] = cols["phi"]
