@@ -134,6 +134,7 @@ def test_update_without_relabel_recomputes_the_forward() -> None:
 
 def test_recompute_all_equals_per_row_values() -> None:
     src, buf, _ = _filled(config=HarsConfig(recompute_chunk=7))
+    src.flush_factors()  # rows stored since the last batch needed them are evaluated now
     n = buf.size
     cols = [c[:n].clone() for c in (src.col_phi, src.col_phi_next, src.col_aux)]
     running = RunningStats(3)
@@ -179,6 +180,9 @@ def test_set_program_reinitialises_exactly_phi_and_varphi() -> None:
 def test_state_round_trip_resumes_bit_identically() -> None:
     a, buf, rng = _filled(seed=1)
     _train(a, buf, rng, 4)
+    with torch.no_grad():
+        a.relabel(buf.sample(8, rng))  # Φ's statistics snapshot is taken here ...
+    fill_episodes(a, buf, [9], rng)  # ... and the running statistics move on: the checkpoint keeps both
     raw = io.BytesIO()
     torch.save(a.state_dict(), raw)
     raw.seek(0)
@@ -245,3 +249,28 @@ def test_program_adapter_and_resume_after_an_edit() -> None:
     assert b.phi_names == a.phi_names
     o = torch.from_numpy(rng.normal(size=(10, 17)).astype(np.float32))
     assert torch.equal(a.potential(o), b.potential(o))
+
+
+def test_factor_columns_are_evaluated_before_anything_reads_them() -> None:
+    """Rows are evaluated in batches when needed; every reader sees the same values and statistics as
+    if each row had been evaluated when it was stored."""
+    lazy, buf, rng = _filled(seed=3)
+    eager, buf_e = make_hars(toy_factors(), seed=3, capacity=512)
+    eager.ctx = lazy.ctx  # the same buffer, evaluated row by row below
+    eager.return_sq = lazy.return_sq  # σ_R comes from episode ends, not from the rows
+    rows = np.arange(buf.size)
+    for row in rows:
+        eager.on_transition(int(row))
+        eager.flush_factors()
+    batch = buf.sample(64, rng)
+    with torch.no_grad():
+        torch.testing.assert_close(lazy.relabel(batch), eager.relabel(batch), rtol=1e-6, atol=1e-6)
+    for x, y in ((lazy.col_phi, eager.col_phi), (lazy.col_phi_next, eager.col_phi_next), (lazy.col_aux, eager.col_aux)):
+        assert torch.equal(x[: buf.size], y[: buf.size])
+    np.testing.assert_allclose(lazy.factor_stats.mean, eager.factor_stats.mean, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(lazy.obs_stats.var, eager.obs_stats.var, rtol=1e-9, atol=1e-12)
+    # a stored row is pending until a batch, the statistics or a checkpoint needs it
+    fill_episodes(lazy, buf, [3], rng)
+    assert len(lazy._unevaluated) == 3
+    state = lazy.state_dict()
+    assert not lazy._unevaluated and state["columns"]["phi"].shape[0] == buf.size

@@ -66,14 +66,17 @@ def test_same_seed_gives_identical_eval_csv(tmp_path: Path, fast_train_args: lis
 
 
 @pytest.mark.slow
-def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path, fast_train_args: list[str]) -> None:
+@pytest.mark.parametrize("method", ["dense", "hars"])
+def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path, fast_train_args: list[str], method: str) -> None:
+    """``hars`` adds learned state beyond the agent's: its networks and optimiser, the factor columns
+    (evaluated lazily), the statistics snapshot Φ reads and σ_R."""
     steps = "2400"
     ref = tmp_path / "ref"
-    assert _train(ref, fast_train_args, steps=int(steps)) == 0
+    assert _train(ref, fast_train_args, "--method", method, steps=int(steps)) == 0
 
     killed = tmp_path / "killed"
     cmd = [sys.executable, "-m", "mira.cli", "train", "--steps", steps, "--seed", "0", "--out", str(killed),
-           *fast_train_args]
+           "--method", method, *fast_train_args]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 240

@@ -176,6 +176,9 @@ class HarsReward(RewardSource):
         self._np_phi, self._np_phi_next, self._np_aux = (
             self.col_phi.numpy(), self.col_phi_next.numpy(), self.col_aux.numpy())
         self.factor_stats = RunningStats(k)
+        self._unevaluated: list[int] = []  # rows stored but not yet evaluated (see ``on_transition``)
+        self._is_unevaluated = np.zeros(cap, dtype=bool)
+        self._flush_at = max(1, min(1024, cap // 2))
         self._meta_static = meta_features(self.phi_names, factors.meta, np.zeros(k), np.zeros(k))[:, :6]
         self._slot_t = torch.tensor([self.slots[n] for n in self.phi_names], dtype=torch.long, device=self.device)
 
@@ -231,19 +234,29 @@ class HarsReward(RewardSource):
         self.return_sq = sq if self.return_sq is None else (1.0 - rho) * self.return_sq + rho * sq
 
     def on_transition(self, row: int) -> None:
+        # Factors are evaluated in vectorised batches of the rows stored since the last flush, when a
+        # batch needs one of them (or before statistics are read, or a checkpoint): one evaluation per
+        # step would run the factor code and the statistics on one row at a time, with cold caches
+        # after each agent update (~0.15 ms a step, more than the arithmetic of a whole batch).
+        self._unevaluated.append(row)
+        self._is_unevaluated[row] = True
+        if len(self._unevaluated) >= self._flush_at:
+            self.flush_factors()
+
+    def flush_factors(self) -> None:
+        """Evaluate the factors of every pending row into the columns and fold them into the statistics."""
+        if not self._unevaluated:
+            return
+        rows = np.asarray(self._unevaluated, dtype=np.int64)
+        self._unevaluated = []
+        self._is_unevaluated[rows] = False
         buf = self.ctx.buffer
-        obs, next_obs, act = buf.obs[row].numpy(), buf.next_obs[row].numpy(), buf.action[row].numpy()
-        fast = getattr(self.factors, "transition", None)
-        if fast is not None:
-            phi_s, phi_next, aux = fast(obs, next_obs, act)
-        else:
-            vals = self.factors.phi(np.stack([obs, next_obs]))
-            phi_s, phi_next = vals[0], vals[1]
-            aux = self.factors.aux(obs[None], act[None])[0] if self.aux_names else None
-        self._np_phi[row] = phi_s
-        self._np_phi_next[row] = phi_next
+        obs = buf.obs.numpy()[rows]
+        phi_s = self.factors.phi(obs)
+        self._np_phi[rows] = phi_s
+        self._np_phi_next[rows] = self.factors.phi(buf.next_obs.numpy()[rows])
         if self.aux_names:
-            self._np_aux[row] = aux
+            self._np_aux[rows] = self.factors.aux(obs, buf.action.numpy()[rows])
         self.factor_stats.update(phi_s)
         self.obs_stats.update(obs)
 
@@ -252,6 +265,7 @@ class HarsReward(RewardSource):
 
         With ``reset_stats`` the factor normalisation statistics restart from the stored states.
         """
+        self.flush_factors()  # pending rows' states still belong in the observation statistics
         buf = self.ctx.buffer
         n = buf.size
         chunk = max(1, self.config.recompute_chunk)
@@ -280,6 +294,7 @@ class HarsReward(RewardSource):
         """
         if self._norm_cache is None:
             if self._snapshot is None:
+                self.flush_factors()
                 self._snapshot = _InputSnapshot(
                     self.factor_stats.mean.copy(), np.maximum(self.factor_stats.std, STD_FLOOR),
                     self.obs_stats.mean.copy(), np.maximum(self.obs_stats.std, STD_FLOOR), self.phi_scale)
@@ -337,14 +352,17 @@ class HarsReward(RewardSource):
 
     def relabel(self, batch: Batch) -> torch.Tensor:
         b = batch.reward.shape[0]
+        cfg = self.config
+        track = torch.is_grad_enabled() and self._trains_now()
+        with_tce = track and cfg.aux_weight > 0 and cfg.tce_window >= 2 and self.updates % max(1, cfg.tce_every) == 0
+        if self._unevaluated and (with_tce or self._is_unevaluated[batch.indices].any()):
+            self.flush_factors()
         idx = torch.from_numpy(batch.indices)
         f = torch.cat([self.col_phi.index_select(0, idx), self.col_phi_next.index_select(0, idx)])
         obs = torch.cat([batch.obs, batch.next_obs])
-        cfg = self.config
-        track = torch.is_grad_enabled() and self._trains_now()
         n_ctx = 0
         past = valid = None
-        if track and cfg.aux_weight > 0 and cfg.tce_window >= 2 and self.updates % max(1, cfg.tce_every) == 0:
+        if with_tce:
             n_ctx = b if cfg.tce_batch is None else min(b, cfg.tce_batch)
             past, valid = self._window_rows(batch.indices[:n_ctx])
             flat = past.reshape(-1)
@@ -442,6 +460,7 @@ class HarsReward(RewardSource):
             self.log_fields = BASE_LOG_FIELDS + tuple(f"attn_{n}" for n in factors.phi_names)
             return
         self.generation += 1
+        self.flush_factors()  # with the old program: its columns are replaced, its rows' states stay in the statistics
         self._install(factors)
         self.recompute_all(reset_stats=True)
         self._build_phi_nets(keep_tce_state=True)
@@ -491,6 +510,7 @@ class HarsReward(RewardSource):
         (the centroid of what the frozen g_ϕ was trained on, i.e. "a typical factor", favouring none)
         and is normalised by its own mean and std over ``obs``. Metadata comes from the candidate.
         """
+        self.flush_factors()  # the statistics below cover every stored row
         o = self._as_numpy(obs)
         names = list(candidate.phi_names)
         vals = candidate.phi(o).astype(np.float64) if names else np.zeros((o.shape[0], 0))
@@ -532,6 +552,7 @@ class HarsReward(RewardSource):
                 "program_version": None if prog is None else prog.version}
 
     def state_dict(self) -> dict[str, Any]:
+        self.flush_factors()  # a checkpoint holds every stored row's factors (flush points stay the same on resume)
         n = self.ctx.buffer.size
         prog = self.program
         return {
