@@ -255,7 +255,7 @@ def test_factor_columns_are_evaluated_before_anything_reads_them() -> None:
     """Rows are evaluated in batches when needed; every reader sees the same values and statistics as
     if each row had been evaluated when it was stored."""
     lazy, buf, rng = _filled(seed=3)
-    eager, buf_e = make_hars(toy_factors(), seed=3, capacity=512)
+    eager, _ = make_hars(toy_factors(), seed=3, capacity=512)
     eager.ctx = lazy.ctx  # the same buffer, evaluated row by row below
     eager.return_sq = lazy.return_sq  # σ_R comes from episode ends, not from the rows
     rows = np.arange(buf.size)
