@@ -157,24 +157,30 @@ class ValuePotential(nn.Module):
 
 
 class FrozenPotential:
-    """Φ = ``vpm(fab(x, obs, ids, meta)[0], obs)`` with every parameter-only product precomputed, for
-    the shaping of sampled batches (no gradient).
+    """Φ(s) = ``unit · vpm(fab(x, o, ids, meta)[0], o)`` from *raw* factor values ``f`` and states ``obs``,
+    with ``x = clamp(f · f_inv + f_shift, ±clip)`` and likewise ``o``: the shaping of sampled batches,
+    without a gradient, with every parameter-only product precomputed.
 
-    Built once per parameter version (the caller rebuilds it after each optimiser step), it holds:
-    the per-factor scale and shift of the embedder's hidden layer for these ``ids`` and ``meta``, the
-    folded score map (:meth:`FactorAttentionBlock.score_map`), and the FAB's output layer ``W_2``
-    folded into the VPM's first layer (``V_1 v = (V_1 W_2) Σ α_i h_i + (Σ α_i) V_1 b_2``). A call is
-    then about fifteen tensor ops on the batch, activations in place. Per op, dispatch and cold caches
-    cost more than the arithmetic at these sizes (the agent's update runs between two calls and
-    evicts everything), so the count of ops, not of multiply-adds, is what this saves.
+    Built once per parameter version (the caller rebuilds it after each optimiser step), it holds the
+    per-factor scale and shift of the embedder's hidden layer for these ``ids`` and ``meta``, the
+    folded score map (:meth:`FactorAttentionBlock.score_map`), the FAB's output layer ``W_2`` folded
+    into the VPM's first layer (``V_1 v = (V_1 W_2) Σ α_i h_i + (Σ α_i) V_1 b_2``) and ``unit`` folded
+    into the output layer. A call is then about twenty tensor ops on the batch, activations in place.
+    At these sizes dispatch and cold caches (the agent's update runs between two calls and evicts
+    everything) cost more than the arithmetic, so the count of ops is what this keeps small.
     """
 
     @torch.no_grad()
-    def __init__(self, fab: FactorAttentionBlock, vpm: ValuePotential, ids: torch.Tensor, meta: torch.Tensor) -> None:
+    def __init__(self, fab: FactorAttentionBlock, vpm: ValuePotential, ids: torch.Tensor, meta: torch.Tensor, *,
+                 f_shift: torch.Tensor | None = None, f_inv: torch.Tensor | None = None,
+                 o_shift: torch.Tensor | None = None, o_inv: torch.Tensor | None = None,
+                 clip: float = math.inf, unit: float = 1.0) -> None:
         self.fab, self.vpm = fab, vpm
         self.k = int(ids.shape[0])
         self.exact = vpm.state_proj is not None or self.k == 0  # these take the modules' own forward
-        self.ids, self.meta = ids, meta
+        self.ids, self.meta, self.unit, self.clip = ids, meta, float(unit), float(clip)
+        self.f_affine = None if f_inv is None or f_shift is None else (f_shift, f_inv)
+        self.o_affine = None if o_inv is None or o_shift is None else (o_shift, o_inv)
         if self.exact:
             return
         ctx = fab.factor_ctx(torch.cat([ids, meta], dim=-1))  # [K, 2H]
@@ -189,15 +195,22 @@ class FrozenPotential:
         self.v1_weight_t = (first.weight @ w_out).t().contiguous()  # [H, hidden]
         self.v1_bias = torch.addmv(first.bias, first.weight, fab.factor_out.bias)
         self.v2_weight_t, self.v2_bias = second.weight.t().contiguous(), second.bias.detach().clone()
-        self.v3_weight, self.v3_bias = out.weight[0].detach().clone(), out.bias.detach().clone()
+        self.v3_weight, self.v3_bias = out.weight[0] * self.unit, out.bias * self.unit
+
+    def _inputs(self, f: torch.Tensor, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        c = self.clip
+        x = f if self.f_affine is None else torch.addcmul(self.f_affine[0], f, self.f_affine[1]).clamp_(-c, c)
+        o = obs if self.o_affine is None else torch.addcmul(self.o_affine[0], obs, self.o_affine[1]).clamp_(-c, c)
+        return x, o
 
     @torch.no_grad()
-    def __call__(self, x: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
-        """Φ ``[B]`` from normalised factor values ``x [B, K]`` and normalised states ``obs [B, obs_dim]``."""
+    def __call__(self, f: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        """Φ ``[B]`` from factor values ``f [B, K]`` and states ``obs [B, obs_dim]``."""
+        x, o = self._inputs(f, obs)
         if self.exact:
-            return self.vpm(self.fab(x, obs, self.ids, self.meta)[0], obs)
+            return self.vpm(self.fab(x, o, self.ids, self.meta)[0], o) * self.unit
         h = F.silu(torch.addcmul(self.shift, x.unsqueeze(-1), self.scale), inplace=True)  # [B, K, H]
-        y = F.layer_norm(torch.addmm(self.q_bias, obs, self.q_weight_t), *self.ln)
+        y = F.layer_norm(torch.addmm(self.q_bias, o, self.q_weight_t), *self.ln)
         g = torch.addmm(self.a_bias, F.silu(y, inplace=True), self.a_map)  # [B, H]
         alpha = torch.softmax((h * g.unsqueeze(1)).sum(-1), dim=-1)  # [B, K]
         pooled = h.mul_(alpha.unsqueeze(-1)).sum(1)  # Σ α_i h_i, [B, H]

@@ -302,10 +302,17 @@ class HarsReward(RewardSource):
             f_mean, f_std, o_mean, o_std = snap.f_mean, snap.f_std, snap.o_mean, snap.o_std
             meta = np.concatenate([self._meta_static, np.stack([np.sign(f_mean) * np.log1p(np.abs(f_mean)),
                                                                 np.log1p(f_std)], axis=1)], axis=1)
-            dev = self.device
-            self._norm_cache = tuple(torch.from_numpy(np.asarray(a, dtype=np.float32)).to(dev)
-                                     for a in (f_mean, f_std, meta, o_mean, o_std))
+            self._norm_cache = self._norm_tensors(f_mean, f_std, meta, o_mean, o_std)
         return self._norm_cache
+
+    def _norm_tensors(self, f_mean: np.ndarray, f_std: np.ndarray, meta: np.ndarray, o_mean: np.ndarray,
+                      o_std: np.ndarray) -> tuple[torch.Tensor, ...]:
+        """``(f_shift, f_inv, meta, o_shift, o_inv)`` on the device: ``x = f · f_inv + f_shift`` is
+        ``(f − mean) / std`` as one fused multiply-add (computed in float64, stored in float32)."""
+        out = []
+        for a in (-f_mean / f_std, 1.0 / f_std, meta, -o_mean / o_std, 1.0 / o_std):
+            out.append(torch.from_numpy(np.asarray(a, dtype=np.float32)).to(self.device))
+        return tuple(out)
 
     def _unit(self) -> float:
         """σ_R as of the current weights (the snapshot's, see ``_norm``)."""
@@ -316,17 +323,18 @@ class HarsReward(RewardSource):
     def _normalise(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...]
                    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Normalised, clipped factor values ``x`` and observations ``o``: the networks' inputs."""
-        f_mean, f_std, _, o_mean, o_std = norm
+        f_shift, f_inv, _, o_shift, o_inv = norm
         c = self.config.input_clip
-        return ((f - f_mean) / f_std).clamp_(-c, c), ((obs - o_mean) / o_std).clamp_(-c, c)
+        return torch.addcmul(f_shift, f, f_inv).clamp_(-c, c), torch.addcmul(o_shift, obs, o_inv).clamp_(-c, c)
 
     def _potential_no_grad(self, f: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         """Φ of every row, without a graph (the shaping of a batch HARS does not train on)."""
-        norm = self._norm()
         if self._frozen is None:
-            self._frozen = FrozenPotential(self.fab, self.vpm, self.fab.ids(self._slot_t).detach(), norm[2])
-        x, o = self._normalise(f, obs, norm)
-        return self._frozen(x, o) * self._unit()
+            f_shift, f_inv, meta, o_shift, o_inv = self._norm()
+            self._frozen = FrozenPotential(self.fab, self.vpm, self.fab.ids(self._slot_t).detach(), meta,
+                                           f_shift=f_shift, f_inv=f_inv, o_shift=o_shift, o_inv=o_inv,
+                                           clip=self.config.input_clip, unit=self._unit())
+        return self._frozen(f, obs)
 
     def _forward(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...],
                  ids: torch.Tensor | None = None, n_phi: int | None = None
@@ -371,7 +379,7 @@ class HarsReward(RewardSource):
         if not track:
             with torch.no_grad():
                 phi = self._potential_no_grad(f.to(self.device), obs)
-            return batch.reward + self.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b]
+                return (batch.reward - phi[:b]).addcmul_(1.0 - batch.terminated, phi[b:], value=self.gamma)
         phi, v_all, alpha_all = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
         v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
         leaf = phi.detach()
@@ -510,12 +518,13 @@ class HarsReward(RewardSource):
         (the centroid of what the frozen g_ϕ was trained on, i.e. "a typical factor", favouring none)
         and is normalised by its own mean and std over ``obs``. Metadata comes from the candidate.
         """
-        self.flush_factors()  # the statistics below cover every stored row
         o = self._as_numpy(obs)
         names = list(candidate.phi_names)
         vals = candidate.phi(o).astype(np.float64) if names else np.zeros((o.shape[0], 0))
         pos = {n: j for j, n in enumerate(self.phi_names)}
-        cur_mean, cur_std = self.factor_stats.mean, np.maximum(self.factor_stats.std, STD_FLOOR)
+        _, _, _, o_shift, o_inv = self._norm()  # known factors keep the statistics Φ reads now
+        assert self._snapshot is not None
+        cur_mean, cur_std = self._snapshot.f_mean, self._snapshot.f_std
         mean = np.array([cur_mean[pos[n]] if n in pos else vals[:, j].mean() if len(vals) else 0.0
                          for j, n in enumerate(names)], dtype=np.float64)
         std = np.array([cur_std[pos[n]] if n in pos else max(float(vals[:, j].std()) if len(vals) else 1.0,
@@ -525,10 +534,7 @@ class HarsReward(RewardSource):
         known = self.fab.ids(self._slot_t)
         fallback = known.mean(0) if known.shape[0] else torch.zeros(self.config.id_dim, device=self.device)
         ids = torch.stack([known[pos[n]] if n in pos else fallback for n in names]) if names else known[:0]
-        _, _, _, o_mean, o_std = self._norm()
-        norm = (torch.from_numpy(mean.astype(np.float32)).to(self.device),
-                torch.from_numpy(std.astype(np.float32)).to(self.device),
-                torch.from_numpy(meta).to(self.device), o_mean, o_std)
+        norm = (*self._norm_tensors(mean, std, meta, np.zeros(0), np.ones(0))[:3], o_shift, o_inv)
         out = []
         for sl in self._chunks(o.shape[0]):
             f = torch.from_numpy(vals[sl].astype(np.float32)).to(self.device)
