@@ -93,7 +93,7 @@ def test_relabel_after_a_training_step_uses_the_new_weights_and_statistics() -> 
         b = probe.reward.shape[0]
         f = torch.cat([src.col_phi[torch.from_numpy(probe.indices)], src.col_phi_next[torch.from_numpy(probe.indices)]])
         norm = src._norm()
-        assert torch.equal(norm[0], torch.from_numpy(src.factor_stats.mean.astype(np.float32)))  # fresh snapshot
+        assert src._snapshot is not None and np.array_equal(src._snapshot.f_mean, src.factor_stats.mean)  # fresh
         phi = src._forward(f, torch.cat([probe.obs, probe.next_obs]), norm)[0]
     want = probe.reward + src.gamma * (1 - probe.terminated) * phi[b:] - phi[:b]
     torch.testing.assert_close(after, want, rtol=1e-5, atol=1e-5)

@@ -71,14 +71,16 @@ def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path, fast_trai
     """``hars`` adds learned state beyond the agent's: its networks and optimiser, the factor columns
     (evaluated lazily), the statistics snapshot Φ reads and σ_R."""
     steps = "2400"
+    # Every part runs in a fresh process, as a user runs it (the killed run has to anyway).
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
     ref = tmp_path / "ref"
-    assert _train(ref, fast_train_args, "--method", method, steps=int(steps)) == 0
+    base = [sys.executable, "-m", "mira.cli", "train", "--steps", steps, "--seed", "0", "--method", method,
+            *fast_train_args]
+    assert subprocess.run([*base, "--out", str(ref)], env=env, capture_output=True).returncode == 0
 
     killed = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "mira.cli", "train", "--steps", steps, "--seed", "0", "--out", str(killed),
-           "--method", method, *fast_train_args]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen([*base, "--out", str(killed)], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
     deadline = time.time() + 240
     while time.time() < deadline and proc.poll() is None:
         if [s for s in list_checkpoints(killed / "checkpoints") if s >= 800]:
@@ -89,5 +91,6 @@ def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path, fast_trai
     proc.wait()
     assert '"running"' in (killed / "status.json").read_text()
 
-    assert main(["train", "--resume", str(killed), "--quiet"]) == 0
+    resume = [sys.executable, "-m", "mira.cli", "train", "--resume", str(killed), "--quiet"]
+    assert subprocess.run(resume, env=env, capture_output=True).returncode == 0
     assert _eval_rows(killed) == _eval_rows(ref)
