@@ -129,7 +129,10 @@ def _environment_facts() -> dict[str, Any]:
     import mujoco
     import numpy
 
+    from mira.agents import gemm
+
     return {"mira": __version__, "python": platform.python_version(), "torch": torch.__version__,
+            "gemm_backend": gemm.BACKEND,  # the agents' float32 products: rerun with MIRA_GEMM set to this
             "numpy": numpy.__version__, "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
             "platform": platform.platform(), "argv": sys.argv}
 

@@ -25,6 +25,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from mira.agents import gemm
+
 
 class EnsembleLinear(nn.Module):
     """``E`` independent linear layers evaluated in one batched matmul: ``[E, B, in] -> [E, B, out]``."""
@@ -136,7 +138,7 @@ class EnsembleQKernels:
         h = x.expand(e, -1, -1)
         last = len(params) - 2
         for i in range(0, last, 2):
-            h = torch.baddbmm(params[i + 1], h, params[i], out=acts[i // 2]).relu_()
+            h = gemm.bmm(h, params[i], params[i + 1], relu=True, out=acts[i // 2])
         w, b = params[last], params[last + 1]
         for m in range(e):  # width-1 output: one GEMV per member (MKL's batched GEMM is slow at N = 1)
             torch.mv(h[m], w[m, :, 0], out=q[m])
@@ -161,10 +163,10 @@ class EnsembleQKernels:
         torch.ops.aten.threshold_backward.grad_input(g, h, 0, grad_input=g)
         for i in range(last - 2, -1, -2):
             inp = ins[i // 2]
-            torch.bmm(inp.transpose(1, 2), g, out=grads[i])
+            gemm.bmm(inp.transpose(1, 2), g, out=grads[i])
             torch.sum(g, 1, keepdim=True, out=grads[i + 1])
             if i > 0:
-                g_in = torch.bmm(g, params[i].transpose(1, 2), out=gbufs[i // 2 - 1])
+                g_in = gemm.bmm(g, params[i].transpose(1, 2), out=gbufs[i // 2 - 1])
                 g = torch.ops.aten.threshold_backward.grad_input(g_in, inp, 0, grad_input=g_in)
 
     def input_grad_of_min(self, params: Sequence[torch.Tensor], argmin: torch.Tensor | None, scale: float,
@@ -198,9 +200,9 @@ class EnsembleQKernels:
                 g = torch.ops.aten.threshold_backward(w_out.expand_as(h), h, 0)
                 for i in range(last - 2, 0, -2):
                     inp = rows(ins[i // 2][m])
-                    g = torch.mm(g, params[i][m].t())
+                    g = gemm.matmul(g, params[i][m].t())
                     g = torch.ops.aten.threshold_backward.grad_input(g, inp, 0, grad_input=g)
-                g = torch.mm(g, w0[m].t())
+                g = gemm.matmul(g, w0[m].t())
             if dx is None:
                 return g.contiguous()
             dx.index_copy_(0, idx, g)  # type: ignore[arg-type]
@@ -276,8 +278,8 @@ class MLPKernels:
         h = x
         last = len(params) - 2
         for i in range(0, last, 2):
-            h = torch.addmm(params[i + 1], h, params[i].t(), out=acts[i // 2]).relu_()
-        return torch.addmm(params[last + 1], h, params[last].t(), out=acts[-1])
+            h = gemm.matmul(h, params[i].t(), params[i + 1], relu=True, out=acts[i // 2])
+        return gemm.matmul(h, params[last].t(), params[last + 1], out=acts[-1])
 
     def backward(self, params: Sequence[torch.Tensor], g_out: torch.Tensor, grads: Sequence[torch.Tensor],
                  rows: slice | None = None) -> None:
@@ -294,10 +296,10 @@ class MLPKernels:
         for i in range(len(params) - 2, -1, -2):
             layer = i // 2
             inp = acts[layer - 1] if layer > 0 else x
-            torch.mm(g.t(), inp, out=grads[i])
+            gemm.matmul(g.t(), inp, out=grads[i])
             torch.sum(g, 0, out=grads[i + 1])
             if layer > 0:
-                g_in = torch.mm(g, params[i], out=gbufs[layer - 1][:n])
+                g_in = gemm.matmul(g, params[i], out=gbufs[layer - 1][:n])
                 g = torch.ops.aten.threshold_backward.grad_input(g_in, inp, 0, grad_input=g_in)
 
 

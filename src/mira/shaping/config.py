@@ -35,7 +35,7 @@ class HarsConfig:
     """GRU hidden size of the Temporal Context Encoder (Table 1)."""
     tce_window: int = 8
     """Window length of consecutive same-episode steps the TCE sees (the last one is the target)."""
-    tce_batch: int | None = 64
+    tce_batch: int | None = 32
     """Sampled rows whose windows feed L_aux when it is computed (None: the whole batch)."""
     tce_every: int = 4
     """Compute L_aux (and step ψ) on every this many updates. The GRU over W − 1 steps is a chain of
