@@ -28,6 +28,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from mira.agents import gemm
 from mira.shaping.factors import META_DIM
 
 
@@ -210,12 +211,12 @@ class FrozenPotential:
         if self.exact:
             return self.vpm(self.fab(x, o, self.ids, self.meta)[0], o) * self.unit
         h = F.silu(torch.addcmul(self.shift, x.unsqueeze(-1), self.scale), inplace=True)  # [B, K, H]
-        y = F.layer_norm(torch.addmm(self.q_bias, o, self.q_weight_t), *self.ln)
-        g = torch.addmm(self.a_bias, F.silu(y, inplace=True), self.a_map)  # [B, H]
+        y = F.layer_norm(gemm.matmul(o, self.q_weight_t, self.q_bias), *self.ln)
+        g = gemm.matmul(F.silu(y, inplace=True), self.a_map, self.a_bias)  # [B, H]
         alpha = torch.softmax((h * g.unsqueeze(1)).sum(-1), dim=-1)  # [B, K]
         pooled = h.mul_(alpha.unsqueeze(-1)).sum(1)  # Σ α_i h_i, [B, H]
-        hid = torch.addmm(self.v1_bias, pooled, self.v1_weight_t).relu_()
-        hid = torch.addmm(self.v2_bias, hid, self.v2_weight_t).relu_()
+        hid = gemm.matmul(pooled, self.v1_weight_t, self.v1_bias, relu=True)
+        hid = gemm.matmul(hid, self.v2_weight_t, self.v2_bias, relu=True)
         return torch.addmv(self.v3_bias, hid, self.v3_weight)
 
 
