@@ -38,15 +38,17 @@ class HarsConfig:
     tce_batch: int | None = 32
     """Sampled rows whose windows feed L_aux when it is computed (None: the whole batch)."""
     tce_every: int = 4
-    """Compute L_aux (and step ψ) on every this many updates. The GRU over W − 1 steps is a chain of
-    small sequential ops that cost more than the rest of HARS on a CPU; every 4th update on 64 rows
-    keeps the auxiliary signal (16 windows per update on average) at a fraction of the cost.
-    1 = every update, as in Algorithm 3."""
+    """Compute L_aux (and step ψ) on every this many HARS training steps. The GRU over W − 1 steps is a
+    chain of small sequential ops that cost more than the rest of HARS on a CPU; every 4th training
+    step on 32 rows keeps the auxiliary signal (8 windows per training step on average) at a
+    fraction of the cost. 1 = every training step, as in Algorithm 3."""
     update_every: int = 8
     """Train (ϕ, φ, ψ) on every this many agent updates; Φ is evaluated afresh for every sampled batch
-    all the same (the shaped reward always uses the current Φ). One HARS training step costs about four
-    times the forward pass the shaping needs, so training on every 4th batch keeps HARS near the issue's
-    budget on a CPU (see bench/RESULTS.md, "HARS overhead"). 1 = every update, as in Algorithm 3."""
+    all the same (the shaped reward always uses the current Φ, which stays one fixed function, weights
+    and input statistics, between two training steps). One HARS training step costs about five times
+    the forward pass the shaping needs, so training on every 8th batch keeps HARS's cost per step
+    close to the shaping's own on a CPU (see bench/RESULTS.md, "HARS overhead"). 1 = every update,
+    as in Algorithm 3."""
     vpm_hidden: int = 128
     """Width of the two hidden layers of the Value Potential Mapping MLP (Table 1)."""
     vpm_state_proj: bool = False
