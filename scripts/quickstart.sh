@@ -4,8 +4,9 @@
 # then print the story of the run. The outer loop runs on short cycles (ΔT = 1,000 steps, short
 # warm-up) so that monitoring and reframing show within minutes — on a 2-core machine the monitor
 # fires at step 10,000 (under 2 minutes in), SRR proposes three edits, checks and verifies them, and
-# accepts one; Table 1's defaults are ΔT = 5,000 and a 10-cycle warm-up (drop the --set flags for
-# those). One intra-op thread: with two,
+# accepts the best one that passes the proxy test or backs off (at this budget the held-out values
+# carry little signal, and it backs off); Table 1's defaults are ΔT = 5,000 and a 10-cycle warm-up
+# (drop the --set flags for those). One intra-op thread: with two,
 # any other job on a 2-core machine stalls every OpenMP barrier (see bench/RESULTS.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
