@@ -228,12 +228,6 @@ def test_program_adapter_and_resume_after_an_edit() -> None:
     assert f0.phi_names == ["r_vel", "r_upright", "r_stable"] and f0.aux_names == ["r_ctrl"]
     assert (f0.meta["r_vel"].range_lo, f0.meta["r_vel"].range_hi) == (-15.0, 15.0)
     rng = np.random.default_rng(0)
-    obs, nxt = rng.normal(size=(2, 17)), rng.normal(size=(2, 17))
-    act = rng.uniform(-1, 1, size=(2, 6))
-    s, n, aux = f0.transition(obs[0], nxt[0], act[0])
-    np.testing.assert_array_equal(s, f0.phi(obs[:1])[0])
-    np.testing.assert_array_equal(n, f0.phi(nxt[:1])[0])
-    np.testing.assert_array_equal(aux, f0.aux(obs[:1], act[:1])[0])
 
     a, buf = make_hars(f0, obs_dim=17, act_dim=6, card=card)
     fill_episodes(a, buf, [30, 30], rng)

@@ -244,13 +244,3 @@ class ProgramFactorSource:
 
     def aux(self, obs: np.ndarray, act: np.ndarray) -> np.ndarray:
         return self.compiled.aux(self.card.state_view(obs), act)
-
-    def transition(self, obs: np.ndarray, next_obs: np.ndarray,
-                   act: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """One transition's PHI at s and s′ and AUX at (s, a) from a single two-row state view (the
-        per-step hot path; AUX is also evaluated at (s′, a) and discarded, which is cheaper than a
-        second view)."""
-        view = self.card.state_view(np.stack([obs, next_obs]))
-        phi = self.compiled.phi(view)
-        aux = self.compiled.aux(view, np.stack([act, act]))[0] if self.compiled.aux_names else None
-        return phi[0], phi[1], aux

@@ -1,13 +1,17 @@
 """HARS as a reward source: learned potential-based shaping over the PHI factors (section 4.2.2).
 
-Per stored transition the source evaluates the program's factors once (PHI at s and at s′, AUX at
-(s, a)) into its own columns, sized like the replay buffer. When a batch is sampled, ``relabel``
-gathers those columns and returns the PBRS reward of eq. (9) with absorbing terminals,
+Each stored transition's factors (PHI at s and at s′, AUX at (s, a)) are evaluated once into the
+source's own columns, sized like the replay buffer, in vectorised batches of the rows stored since
+the last batch that needed one of them. When a batch is sampled, ``relabel`` gathers those columns
+and returns the PBRS reward of eq. (9) with absorbing terminals,
 
     r_shape = r_ext + γ · Φ(s′) · (1 − terminated) − Φ(s),
 
-computed from the *current* potential (one forward over the concatenated [s; s′] batch). A time-
-limit truncation is not a terminal: there Φ(s′) is kept, exactly as the critic keeps bootstrapping.
+computed from the *current* potential (one forward over the concatenated [s; s′] batch). Φ changes
+only when HARS trains: its weights and the input statistics and σ_R it reads are one fixed function
+between two training steps, so every batch in between is shaped by a :class:`FrozenPotential` built
+once. A time-limit truncation is not a terminal: there Φ(s′) is kept, exactly as the critic keeps
+bootstrapping.
 
 Joint objective (eq. 10). With ``joint=True`` (the default, as in the paper) the reward handed to the
 agent carries gradient into (ϕ, φ): the critic's TD loss L_RL is minimised over the shaping
