@@ -17,6 +17,7 @@ from mira.agents.networks import (
     squashed_gaussian_backward,
     squashed_gaussian_forward,
 )
+from mira.errors import UsageError
 
 
 def test_ensemble_q_kernels_match_autograd() -> None:
@@ -93,7 +94,7 @@ def test_gemm_products_match_torch_on_every_backend(n: int, k: int, m: int, e: i
 
 
 def test_gemm_backend_choice_is_checked() -> None:
-    with pytest.raises(ValueError, match="MIRA_GEMM"):
+    with pytest.raises(UsageError, match="MIRA_GEMM"):
         gemm._resolve("fast")
     assert gemm._resolve("blas") == "blas"
     assert gemm._resolve("auto") in ("blas", "onednn")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -36,3 +37,11 @@ def test_bad_input_is_one_line_exit_2(tmp_path: Path, args: list[str], needle: s
     assert len(lines) == 1, proc.stderr
     assert needle in lines[0]
     assert "Traceback" not in proc.stderr
+
+
+def test_bad_gemm_backend_is_one_line_exit_2(tmp_path: Path) -> None:
+    proc = subprocess.run([sys.executable, "-m", "mira.cli", "train", "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=120, env={**os.environ, "MIRA_GEMM": "fast"})
+    assert proc.returncode == 2, proc.stderr
+    assert "MIRA_GEMM='fast'" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "o").exists()  # nothing written

@@ -132,15 +132,17 @@ def _environment_facts() -> dict[str, Any]:
     from mira.agents import gemm
 
     return {"mira": __version__, "python": platform.python_version(), "torch": torch.__version__,
-            "gemm_backend": gemm.BACKEND,  # the agents' float32 products: rerun with MIRA_GEMM set to this
+            "gemm_backend": gemm.backend(),  # the agents' float32 products: rerun with MIRA_GEMM set to this
             "numpy": numpy.__version__, "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
             "platform": platform.platform(), "argv": sys.argv}
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    from mira.agents import gemm
     from mira.loop.trainer import Trainer, TrainSetup, resolve_device
     from mira.runio.rundir import RunDir, prepare_run_dir
 
+    gemm.backend()  # a bad MIRA_GEMM is a usage error before anything is written
     if args.resume:
         path = prepare_run_dir(args.resume, resume=True, overwrite=False)
         try:

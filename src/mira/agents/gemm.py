@@ -19,27 +19,37 @@ import os
 
 import torch
 
+from mira.errors import UsageError
+
 _CHOICES = ("auto", "onednn", "blas")
 
 
 def _resolve(choice: str) -> str:
     if choice not in _CHOICES:
-        raise ValueError(f"MIRA_GEMM={choice!r}: expected one of {', '.join(_CHOICES)}")
+        raise UsageError(f"environment variable MIRA_GEMM={choice!r}: expected one of {', '.join(_CHOICES)}")
     has_onednn = bool(torch.backends.mkldnn.is_available()) and hasattr(torch.ops.mkldnn, "_linear_pointwise")
     if choice == "onednn" and not has_onednn:
-        raise ValueError("MIRA_GEMM=onednn: this PyTorch build has no oneDNN linear primitive")
+        raise UsageError("environment variable MIRA_GEMM=onednn: this PyTorch build has no oneDNN linear primitive")
     return "onednn" if choice != "blas" and has_onednn else "blas"
 
 
-BACKEND = _resolve(os.environ.get("MIRA_GEMM", "auto"))
-"""``"onednn"`` or ``"blas"``: how :func:`matmul` multiplies float32 CPU matrices in this process."""
+BACKEND: str | None = None
+"""``"onednn"`` or ``"blas"`` once :func:`backend` has read ``MIRA_GEMM`` (None before)."""
+
+
+def backend() -> str:
+    """How :func:`matmul` multiplies float32 CPU matrices in this process (read from ``MIRA_GEMM`` once)."""
+    global BACKEND
+    if BACKEND is None:
+        BACKEND = _resolve(os.environ.get("MIRA_GEMM", "auto"))
+    return BACKEND
 
 
 def matmul(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None, relu: bool = False,
            out: torch.Tensor | None = None) -> torch.Tensor:
     """``relu?(a @ b + bias)`` for ``a [n, k]``, ``b [k, m]`` (either may be a transposed view) and
     ``bias [m]``, written into ``out`` when given (then returned)."""
-    if BACKEND == "onednn" and a.dtype == torch.float32 and a.device.type == "cpu":
+    if (BACKEND or backend()) == "onednn" and a.dtype == torch.float32 and a.device.type == "cpu":
         # The primitive computes a @ wᵀ + bias for a weight w [m, k]: bᵀ is that weight, as a view.
         res = torch.ops.mkldnn._linear_pointwise(a, b.t(), bias, "relu" if relu else "none", [], "")
         return res if out is None else out.copy_(res)
@@ -57,7 +67,7 @@ def bmm(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None, relu
     oneDNN has no batched primitive here, so its path runs one product per member (E is 1 or 2) and
     copies it into ``out``; the BLAS path is one ``baddbmm``/``bmm``.
     """
-    if BACKEND == "onednn" and a.dtype == torch.float32 and a.device.type == "cpu":
+    if (BACKEND or backend()) == "onednn" and a.dtype == torch.float32 and a.device.type == "cpu":
         if out is None:
             out = a.new_empty(a.shape[0], a.shape[1], b.shape[2])
         for m in range(a.shape[0]):
@@ -70,4 +80,4 @@ def bmm(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None, relu
     return res.relu_() if relu else res
 
 
-__all__ = ["BACKEND", "bmm", "matmul"]
+__all__ = ["BACKEND", "backend", "bmm", "matmul"]
