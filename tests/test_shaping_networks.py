@@ -12,10 +12,10 @@ from hypothesis import strategies as st
 from mira.shaping.factors import META_DIM
 from mira.shaping.networks import (
     FactorAttentionBlock,
+    FrozenPotential,
     TemporalContextEncoder,
     ValuePotential,
     attention_entropy,
-    potential_no_grad,
 )
 from mira.shaping.testing import fill_episodes, make_hars, toy_factors
 
@@ -70,14 +70,24 @@ def test_fast_forward_equals_the_literal_definition(k: int, b: int, seed: int, m
 
 
 @settings(max_examples=25, deadline=None)
-@given(k=st.integers(0, 12), b=st.integers(1, 9), seed=st.integers(0, 2**16))
-def test_no_grad_potential_equals_the_modules(k: int, b: int, seed: int) -> None:
-    """The shaping path's Φ (W_2 folded into the VPM) is ``vpm(fab(...))`` for any number of factors."""
+@given(k=st.integers(0, 12), b=st.integers(1, 9), seed=st.integers(0, 2**16), state_proj=st.booleans(),
+       unit=st.floats(0.5, 100.0), clip=st.floats(0.5, 10.0))
+def test_frozen_potential_equals_the_modules(k: int, b: int, seed: int, state_proj: bool, unit: float,
+                                             clip: float) -> None:
+    """The shaping path's Φ (W_2 folded into the VPM, normalisation as a multiply-add, σ_R folded into
+    the output) is ``unit · vpm(fab(x, o))`` of the clipped, normalised inputs for any number of factors."""
     fab = _fab(seed % 7).double()
-    vpm = ValuePotential(16, OBS, hidden=16).double()
-    x, obs, ids, meta = (t.double() for t in _inputs(b, k, seed))
-    expected = vpm(fab(x, obs, ids, meta)[0], obs)
-    torch.testing.assert_close(potential_no_grad(fab, vpm, x, obs, ids, meta), expected, rtol=1e-9, atol=1e-10)
+    vpm = ValuePotential(16, OBS, hidden=16, state_proj=state_proj, state_proj_dim=4).double()
+    f, obs, ids, meta = (t.double() * 3.0 if i < 2 else t.double() for i, t in enumerate(_inputs(b, k, seed)))
+    gen = torch.Generator().manual_seed(seed + 2)
+    f_shift, o_shift = torch.randn(k, generator=gen, dtype=torch.float64), torch.randn(OBS, generator=gen,
+                                                                                          dtype=torch.float64)
+    f_inv, o_inv = (torch.rand(n, generator=gen, dtype=torch.float64) + 0.5 for n in (k, OBS))
+    x, o = (f * f_inv + f_shift).clamp(-clip, clip), (obs * o_inv + o_shift).clamp(-clip, clip)
+    expected = vpm(fab(x, o, ids, meta)[0], o) * unit
+    frozen = FrozenPotential(fab, vpm, ids, meta, f_shift=f_shift, f_inv=f_inv, o_shift=o_shift, o_inv=o_inv,
+                             clip=clip, unit=unit)
+    torch.testing.assert_close(frozen(f, obs), expected, rtol=1e-9, atol=1e-9)
 
 
 def test_single_factor_gets_all_attention() -> None:

@@ -220,12 +220,6 @@ class FrozenPotential:
         return torch.addmv(self.v3_bias, hid, self.v3_weight)
 
 
-def potential_no_grad(fab: FactorAttentionBlock, vpm: ValuePotential, x: torch.Tensor, obs: torch.Tensor,
-                      ids: torch.Tensor, meta: torch.Tensor) -> torch.Tensor:
-    """``vpm(fab(x, obs, ids, meta)[0], obs)`` without a graph, through :class:`FrozenPotential`."""
-    return FrozenPotential(fab, vpm, ids, meta)(x, obs)
-
-
 class TemporalContextEncoder(nn.Module):
     """TCE (ψ): a GRU over the previous aggregations of the episode that predicts the current one."""
 

@@ -306,17 +306,16 @@ class HarsReward(RewardSource):
             f_mean, f_std, o_mean, o_std = snap.f_mean, snap.f_std, snap.o_mean, snap.o_std
             meta = np.concatenate([self._meta_static, np.stack([np.sign(f_mean) * np.log1p(np.abs(f_mean)),
                                                                 np.log1p(f_std)], axis=1)], axis=1)
-            self._norm_cache = self._norm_tensors(f_mean, f_std, meta, o_mean, o_std)
+            self._norm_cache = (*self._affine(f_mean, f_std), self._tensor(meta), *self._affine(o_mean, o_std))
         return self._norm_cache
 
-    def _norm_tensors(self, f_mean: np.ndarray, f_std: np.ndarray, meta: np.ndarray, o_mean: np.ndarray,
-                      o_std: np.ndarray) -> tuple[torch.Tensor, ...]:
-        """``(f_shift, f_inv, meta, o_shift, o_inv)`` on the device: ``x = f · f_inv + f_shift`` is
-        ``(f − mean) / std`` as one fused multiply-add (computed in float64, stored in float32)."""
-        out = []
-        for a in (-f_mean / f_std, 1.0 / f_std, meta, -o_mean / o_std, 1.0 / o_std):
-            out.append(torch.from_numpy(np.asarray(a, dtype=np.float32)).to(self.device))
-        return tuple(out)
+    def _tensor(self, a: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.asarray(a, dtype=np.float32)).to(self.device)
+
+    def _affine(self, mean: np.ndarray, std: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(shift, inv)`` with ``x · inv + shift = (x − mean) / std``: normalisation as one fused
+        multiply-add (computed in float64, stored in float32)."""
+        return self._tensor(-mean / std), self._tensor(1.0 / std)
 
     def _unit(self) -> float:
         """σ_R as of the current weights (the snapshot's, see ``_norm``)."""
@@ -538,7 +537,7 @@ class HarsReward(RewardSource):
         known = self.fab.ids(self._slot_t)
         fallback = known.mean(0) if known.shape[0] else torch.zeros(self.config.id_dim, device=self.device)
         ids = torch.stack([known[pos[n]] if n in pos else fallback for n in names]) if names else known[:0]
-        norm = (*self._norm_tensors(mean, std, meta, np.zeros(0), np.ones(0))[:3], o_shift, o_inv)
+        norm = (*self._affine(mean, std), self._tensor(meta), o_shift, o_inv)
         out = []
         for sl in self._chunks(o.shape[0]):
             f = torch.from_numpy(vals[sl].astype(np.float32)).to(self.device)
