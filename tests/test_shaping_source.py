@@ -268,3 +268,45 @@ def test_factor_columns_are_evaluated_before_anything_reads_them() -> None:
     assert len(lazy._unevaluated) == 3
     state = lazy.state_dict()
     assert not lazy._unevaluated and state["columns"]["phi"].shape[0] == buf.size
+
+
+@pytest.mark.parametrize("every", [1, 4, 8])
+def test_lookahead_batches_are_shaped_together_as_they_would_be_one_by_one(every: int) -> None:
+    """``lookahead`` counts the updates before the next training step; ``relabel_many`` shapes their
+    batches in one pass of Φ with the same result as one relabel per batch; ``revision`` moves exactly
+    when Φ's weights do."""
+    src, buf, rng = _filled(config=HarsConfig(update_every=every))
+    seen = []
+    for step in range(2 * every + 1):
+        n = src.lookahead()
+        seen.append(n)
+        batches = [buf.sample(16, rng) for _ in range(n)]
+        revision = src.revision
+        rewards = src.relabel_many(batches)
+        assert len(rewards) == n and src.revision == revision  # shaping never changes Φ
+        if n > 1:
+            with torch.no_grad():
+                for b, r in zip(batches, rewards, strict=True):
+                    torch.testing.assert_close(r, src.relabel(b), rtol=1e-5, atol=1e-5)
+        for b, r in zip(batches, rewards, strict=True):
+            trains = src._trains_now()
+            src.update(b, step)
+            assert (src.revision != revision) == trains
+            revision = src.revision
+            assert trains == r.requires_grad  # only a training step's own batch carries a graph
+        if src.calls >= 2 * every + 1:
+            break
+    # after each training step: the updates until the next one (every − 1), then the training batch alone
+    expected = [1] if every == 1 else [1, every - 1, 1, every - 1, 1]
+    assert seen[: len(expected)] == expected
+
+
+def test_revision_moves_on_a_new_program_and_on_loaded_state() -> None:
+    src, buf, rng = _filled()
+    state = src.state_dict()
+    revision = src.revision
+    src.load_state_dict(state)
+    assert src.revision != revision
+    revision = src.revision
+    src.set_program(toy_factors(("f_a", "f_d")))
+    assert src.revision != revision

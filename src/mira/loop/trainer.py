@@ -26,7 +26,7 @@ from mira.loop.evaluation import EvalResult, collect_rollout, evaluate
 from mira.loop.hooks import CycleContext, CycleHook
 from mira.loop.metrics import MetricSums
 from mira.loop.rollout import Rollout
-from mira.replay import ReplayBuffer
+from mira.replay import Batch, ReplayBuffer
 from mira.rewards.base import RewardContext, RewardSource
 from mira.runio.checkpoint import load_latest, save_checkpoint
 from mira.runio.csvlog import rewind_csv
@@ -101,6 +101,10 @@ class Trainer:
         self.recent_returns: list[float] = []
         self._next_ckpt = setup.checkpoint_every
         self._obs: np.ndarray | None = None
+        # Batches sampled and relabelled ahead (see RewardSource.lookahead), with the source's revision
+        # when they were relabelled: used one per update, dropped when the revision moves or at a checkpoint.
+        self._ahead: list[tuple[Batch, torch.Tensor]] = []
+        self._ahead_revision = -1
 
     # ----------------------------------------------------------------------------------------- run
     def run(self) -> TrainResult:
@@ -140,10 +144,8 @@ class Trainer:
 
             # -- sample, relabel, update
             if self.step > s.learning_starts and self._can_sample():
-                batch = self.buffer.sample(
-                    s.agent_config.batch_size, self.rng, self.reward.needs_complete_episodes
-                ).to(device)
-                metrics = self.agent.update(batch, self.reward.relabel(batch))
+                batch, shaped = self._next_batch(device)
+                metrics = self.agent.update(batch, shaped)
                 metrics.update(self.reward.update(batch, self.step))
                 if not sums.add(metrics):
                     self._non_finite(metrics)
@@ -214,6 +216,18 @@ class Trainer:
             f"checkpoint is intact: lower the learning rate or check the reward program, then --resume"
         )
 
+    def _next_batch(self, device: torch.device) -> tuple[Batch, torch.Tensor]:
+        """The next update's batch and its relabelled reward. A source whose reward stays fixed over
+        several updates gets their batches sampled now and relabels them together; those batches are
+        drawn from the buffer as it is now (the last few stored steps join from the next draw on)."""
+        if not self._ahead or self._ahead_revision != self.reward.revision:
+            n = max(1, self.reward.lookahead())
+            size, complete = self.setup.agent_config.batch_size, self.reward.needs_complete_episodes
+            batches = [self.buffer.sample(size, self.rng, complete).to(device) for _ in range(n)]
+            self._ahead = list(zip(batches, self.reward.relabel_many(batches), strict=True))
+            self._ahead_revision = self.reward.revision
+        return self._ahead.pop(0)
+
     def _can_sample(self) -> bool:
         if self.reward.needs_complete_episodes:
             return self.buffer.completed_size > 0
@@ -256,6 +270,9 @@ class Trainer:
                 "returns": self.last_eval.returns, "lengths": self.last_eval.lengths},
         }
         save_checkpoint(self.run_dir.checkpoints, self.step, state)
+        # Batches sampled ahead are not part of the state: dropping them here, as a resumed run does,
+        # keeps the two identical.
+        self._ahead = []
         self._last_ckpt_step = self.step
         while self._next_ckpt <= self.step:
             self._next_ckpt += self.setup.checkpoint_every

@@ -61,6 +61,23 @@ class RewardSource:
         """Fit the source's own parameters after the agent's update; returns loggable scalars."""
         return {}
 
+    # A source whose reward stays one fixed function over several updates may relabel the batches of
+    # those updates together, in one pass: the trainer then samples ``lookahead()`` batches at once,
+    # relabels them with ``relabel_many`` and uses them one per update, dropping any it has not used
+    # when ``revision`` changes (the function changed: a new program, loaded state).
+    def lookahead(self) -> int:
+        """How many upcoming updates' batches :meth:`relabel_many` may relabel now (1: only the next)."""
+        return 1
+
+    def relabel_many(self, batches: list[Batch]) -> list[torch.Tensor]:
+        """``[relabel(b) for b in batches]``, for at most :meth:`lookahead` batches (sources may batch it)."""
+        return [self.relabel(b) for b in batches]
+
+    @property
+    def revision(self) -> int:
+        """Changes whenever rewards relabelled earlier (and not yet used) would no longer be current."""
+        return 0
+
     def describe(self) -> dict[str, Any]:
         """Facts about the source recorded in the run directory."""
         return {"method": self.name}

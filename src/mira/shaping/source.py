@@ -144,6 +144,7 @@ class HarsReward(RewardSource):
         self._snapshot: _InputSnapshot | None = None
         self._norm_cache: tuple[torch.Tensor, ...] | None = None
         self._frozen: FrozenPotential | None = None
+        self._revision = 0  # counts changes of Φ (see ``revision``)
 
     # --------------------------------------------------------------------------------- set-up
     def bind(self, ctx: RewardContext) -> None:
@@ -221,6 +222,12 @@ class HarsReward(RewardSource):
         self._snapshot = None
         self._norm_cache = None
         self._frozen = None
+        self._revision += 1
+
+    @property
+    def revision(self) -> int:
+        """Bumped whenever Φ's weights change (a training step, a new program, loaded state)."""
+        return self._revision
 
     # ------------------------------------------------------------------------- factor columns
     @property
@@ -382,7 +389,7 @@ class HarsReward(RewardSource):
         if not track:
             with torch.no_grad():
                 phi = self._potential_no_grad(f.to(self.device), obs)
-                return (batch.reward - phi[:b]).addcmul_(1.0 - batch.terminated, phi[b:], value=self.gamma)
+                return self._shaped(batch, phi[:b], phi[b:])
         phi, v_all, alpha_all = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
         v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
         leaf = phi.detach()
@@ -392,6 +399,37 @@ class HarsReward(RewardSource):
         self._pending = _Pending(batch, phi, v, alpha, leaf if cfg.joint else None, v_ctx,
                                  None if valid is None else valid.to(self.device))
         return batch.reward + self.gamma * (1.0 - batch.terminated) * leaf[b:] - leaf[:b]
+
+    def _shaped(self, batch: Batch, phi_s: torch.Tensor, phi_next: torch.Tensor) -> torch.Tensor:
+        """PBRS with an absorbing terminal: ``r + γ (1 − terminated) Φ(s′) − Φ(s)`` (no graph)."""
+        return (batch.reward - phi_s).addcmul_(1.0 - batch.terminated, phi_next, value=self.gamma)
+
+    def lookahead(self) -> int:
+        # Φ is one fixed function until the next training step, so every batch before it can be
+        # shaped now; the training step's own batch is relabelled on its own, with a graph.
+        every = max(1, self.config.update_every)
+        return 1 if self._trains_now() else every - self.calls % every
+
+    def relabel_many(self, batches: list[Batch]) -> list[torch.Tensor]:
+        """The batches of the updates before the next training step, shaped in one pass of Φ: one
+        forward over a few thousand states costs much less than that many forwards of one batch
+        (fewer dispatches; the agent's updates in between no longer evict Φ's data each time)."""
+        if len(batches) == 1 or (torch.is_grad_enabled() and self._trains_now()):
+            return [self.relabel(b) for b in batches]
+        idx = np.concatenate([b.indices for b in batches])
+        if self._unevaluated and self._is_unevaluated[idx].any():
+            self.flush_factors()
+        rows = torch.from_numpy(idx)
+        f = torch.cat([self.col_phi.index_select(0, rows), self.col_phi_next.index_select(0, rows)])
+        obs = torch.cat([*(b.obs for b in batches), *(b.next_obs for b in batches)])
+        with torch.no_grad():
+            phi = self._potential_no_grad(f.to(self.device), obs)
+        n, start, out = idx.shape[0], 0, []
+        for b in batches:
+            m = b.reward.shape[0]
+            out.append(self._shaped(b, phi[start : start + m], phi[n + start : n + start + m]))
+            start += m
+        return out
 
     # -------------------------------------------------------------------------------- update
     def _trains_now(self) -> bool:
