@@ -302,7 +302,7 @@ def test_lookahead_batches_are_shaped_together_as_they_would_be_one_by_one(every
 
 
 def test_revision_moves_on_a_new_program_and_on_loaded_state() -> None:
-    src, buf, rng = _filled()
+    src = _filled()[0]
     state = src.state_dict()
     revision = src.revision
     src.load_state_dict(state)

@@ -45,10 +45,11 @@ class HarsConfig:
     update_every: int = 8
     """Train (ϕ, φ, ψ) on every this many agent updates; Φ is evaluated afresh for every sampled batch
     all the same (the shaped reward always uses the current Φ, which stays one fixed function, weights
-    and input statistics, between two training steps). One HARS training step costs about five times
-    the forward pass the shaping needs, so training on every 8th batch keeps HARS's cost per step
-    close to the shaping's own on a CPU (see bench/RESULTS.md, "HARS overhead"). 1 = every update,
-    as in Algorithm 3."""
+    and input statistics, between two training steps, and the batches of the updates in between are
+    sampled and shaped together right after a training step). One HARS training step costs about ten
+    times the shaping of one batch, so training on every 8th batch keeps HARS's cost per step near the
+    shaping's own on a CPU (see bench/RESULTS.md, "HARS overhead"). 1 = every update, as in
+    Algorithm 3."""
     vpm_hidden: int = 128
     """Width of the two hidden layers of the Value Potential Mapping MLP (Table 1)."""
     vpm_state_proj: bool = False

@@ -10,8 +10,9 @@ and returns the PBRS reward of eq. (9) with absorbing terminals,
 computed from the *current* potential (one forward over the concatenated [s; s′] batch). Φ changes
 only when HARS trains: its weights and the input statistics and σ_R it reads are one fixed function
 between two training steps, so every batch in between is shaped by a :class:`FrozenPotential` built
-once. A time-limit truncation is not a terminal: there Φ(s′) is kept, exactly as the critic keeps
-bootstrapping.
+once, and the trainer hands those batches over together (``lookahead`` / ``relabel_many``): they are
+sampled right after a training step and shaped in one forward pass. A time-limit truncation is not a
+terminal: there Φ(s′) is kept, exactly as the critic keeps bootstrapping.
 
 Joint objective (eq. 10). With ``joint=True`` (the default, as in the paper) the reward handed to the
 agent carries gradient into (ϕ, φ): the critic's TD loss L_RL is minimised over the shaping
