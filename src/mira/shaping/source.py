@@ -372,8 +372,9 @@ class HarsReward(RewardSource):
     def relabel(self, batch: Batch) -> torch.Tensor:
         b = batch.reward.shape[0]
         cfg = self.config
-        track = torch.is_grad_enabled() and self._trains_now()
-        with_tce = track and cfg.aux_weight > 0 and cfg.tce_window >= 2 and self.updates % max(1, cfg.tce_every) == 0
+        if not (torch.is_grad_enabled() and self._trains_now()):
+            return self._shape_frozen([batch])[0]
+        with_tce = cfg.aux_weight > 0 and cfg.tce_window >= 2 and self.updates % max(1, cfg.tce_every) == 0
         if self._unevaluated and (with_tce or self._is_unevaluated[batch.indices].any()):
             self.flush_factors()
         idx = torch.from_numpy(batch.indices)
@@ -387,10 +388,6 @@ class HarsReward(RewardSource):
             flat = past.reshape(-1)
             f = torch.cat([f.to(self.device), self.col_phi[flat].to(self.device)])
             obs = torch.cat([obs, self.ctx.buffer.obs[flat].to(self.device)])
-        if not track:
-            with torch.no_grad():
-                phi = self._potential_no_grad(f.to(self.device), obs)
-                return self._shaped(batch, phi[:b], phi[b:])
         phi, v_all, alpha_all = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
         v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
         leaf = phi.detach()
@@ -400,10 +397,6 @@ class HarsReward(RewardSource):
         self._pending = _Pending(batch, phi, v, alpha, leaf if cfg.joint else None, v_ctx,
                                  None if valid is None else valid.to(self.device))
         return batch.reward + self.gamma * (1.0 - batch.terminated) * leaf[b:] - leaf[:b]
-
-    def _shaped(self, batch: Batch, phi_s: torch.Tensor, phi_next: torch.Tensor) -> torch.Tensor:
-        """PBRS with an absorbing terminal: ``r + γ (1 − terminated) Φ(s′) − Φ(s)`` (no graph)."""
-        return (batch.reward - phi_s).addcmul_(1.0 - batch.terminated, phi_next, value=self.gamma)
 
     def lookahead(self) -> int:
         # Φ is one fixed function until the next training step, so every batch before it can be
@@ -415,20 +408,26 @@ class HarsReward(RewardSource):
         """The batches of the updates before the next training step, shaped in one pass of Φ: one
         forward over a few thousand states costs much less than that many forwards of one batch
         (fewer dispatches; the agent's updates in between no longer evict Φ's data each time)."""
-        if len(batches) == 1 or (torch.is_grad_enabled() and self._trains_now()):
+        if torch.is_grad_enabled() and self._trains_now():
             return [self.relabel(b) for b in batches]
+        return self._shape_frozen(batches)
+
+    @torch.no_grad()
+    def _shape_frozen(self, batches: list[Batch]) -> list[torch.Tensor]:
+        """PBRS rewards ``r + γ (1 − terminated) Φ(s′) − Φ(s)`` of ``batches`` from one no-grad pass
+        of the current Φ over all their [s; s′] (absorbing terminals; a truncation keeps Φ(s′))."""
         idx = np.concatenate([b.indices for b in batches])
         if self._unevaluated and self._is_unevaluated[idx].any():
             self.flush_factors()
         rows = torch.from_numpy(idx)
         f = torch.cat([self.col_phi.index_select(0, rows), self.col_phi_next.index_select(0, rows)])
         obs = torch.cat([*(b.obs for b in batches), *(b.next_obs for b in batches)])
-        with torch.no_grad():
-            phi = self._potential_no_grad(f.to(self.device), obs)
+        phi = self._potential_no_grad(f.to(self.device), obs)
         n, start, out = idx.shape[0], 0, []
         for b in batches:
             m = b.reward.shape[0]
-            out.append(self._shaped(b, phi[start : start + m], phi[n + start : n + start + m]))
+            phi_s, phi_next = phi[start : start + m], phi[n + start : n + start + m]
+            out.append((b.reward - phi_s).addcmul_(1.0 - b.terminated, phi_next, value=self.gamma))
             start += m
         return out
 
