@@ -8,8 +8,10 @@ Each method runs ``mira train`` in a fresh subprocess (learning starts at ``--le
 evaluation or checkpoint inside the run) with thin timers around the agent's ``update`` and ``act``,
 the environment's ``step``, the buffer's ``sample`` and ``add`` and every reward-source hook
 (``relabel``, ``relabel_many``, ``update``, ``on_transition``, ``flush_factors``). Printed: each phase's
-total and its time per update, and the wall time per update of the whole loop. Methods are run
-alternately, ``--repeats`` times, so that a machine whose speed drifts hits all of them alike.
+total and its time per update, the wall time per update of the whole loop and, for a source that
+trains on every k-th update (HARS), the agent's update time by position in that cycle (how much the
+source's work slows the agent's next updates through the caches). Methods are run alternately,
+``--repeats`` times, so that a machine whose speed drifts hits all of them alike.
 
 ``--one-batch-at-a-time`` makes reward sources report a lookahead of 1, i.e. every batch is sampled
 and relabelled right before its update (how the trainer worked before grouped shaping), for A/B runs.
@@ -53,6 +55,7 @@ def _worker(args: argparse.Namespace) -> dict[str, Any]:
     calls: collections.Counter[str] = collections.Counter()
     marks: dict[str, float] = {}
     frozen: dict[str, Any] = {}
+    by_position: dict[int, list[float]] = collections.defaultdict(list)
     original_run = trainer_mod.Trainer.run
 
     def timed(label: str, fn: Any) -> Any:
@@ -75,12 +78,22 @@ def _worker(args: argparse.Namespace) -> dict[str, Any]:
                     setattr(objects[owner], name, timed(f"{owner}.{name}", getattr(objects[owner], name)))
         update = self.agent.update
 
+        cycle = getattr(getattr(self.reward, "config", None), "update_every", None)
+        if not hasattr(self.reward, "calls"):
+            cycle = None
+
         def first_and_last(batch: Any, reward: Any) -> Any:
             if self.step == args.learning_starts + 1:
                 marks["t0"] = time.perf_counter()
                 total.clear()
                 calls.clear()
+                by_position.clear()
+            # Where the agent's update falls in the reward source's training cycle (HARS: 0 = the
+            # update whose batch HARS trains on, 1 = the first after its grouped shaping pass).
+            position = self.reward.calls % cycle if cycle else 0
+            t0 = time.perf_counter()
             out = update(batch, reward)
+            by_position[position].append(time.perf_counter() - t0)
             if self.step == args.steps:  # the final evaluation falls outside
                 marks["t1"] = time.perf_counter()
                 frozen.update(total=dict(total), calls=dict(calls))
@@ -98,7 +111,8 @@ def _worker(args: argparse.Namespace) -> dict[str, Any]:
     updates = args.steps - args.learning_starts
     return {"wall_ms_per_update": 1e3 * (marks["t1"] - marks["t0"]) / updates,
             "phases_ms_per_update": {k: 1e3 * v / updates for k, v in frozen["total"].items()},
-            "calls": frozen["calls"]}
+            "calls": frozen["calls"],
+            "agent_update_ms_by_position": {str(k): 1e3 * statistics.fmean(v) for k, v in sorted(by_position.items())}}
 
 
 def main() -> None:
@@ -141,6 +155,10 @@ def main() -> None:
         for k in keys:
             vals = [r["phases_ms_per_update"].get(k, 0.0) for r in runs]
             print(f"  {k:28s} {statistics.median(vals):7.3f} ms per update   ({runs[0]['calls'].get(k, 0)} calls)")
+        positions = runs[0]["agent_update_ms_by_position"]
+        if len(positions) > 1:
+            print("  agent.update by position in the source's training cycle (ms, per repeat): " + "; ".join(
+                f"{p}: " + "/".join(f"{r['agent_update_ms_by_position'][p]:.2f}" for r in runs) for p in positions))
 
 
 if __name__ == "__main__":
