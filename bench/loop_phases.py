@@ -3,6 +3,7 @@
     python bench/loop_phases.py                           # sparse and hars, SAC, HalfCheetah, 1 thread
     python bench/loop_phases.py --methods sparse,hars,mira --algo ddpg --steps 6000
     python bench/loop_phases.py --methods hars --one-batch-at-a-time   # HARS shaping batch by batch
+    python bench/loop_phases.py --set hars.update_every=16            # any configuration override
 
 Each method runs ``mira train`` in a fresh subprocess (learning starts at ``--learning-starts``; no
 evaluation or checkpoint inside the run) with thin timers around the agent's ``update`` and ``act``,
@@ -107,7 +108,8 @@ def _worker(args: argparse.Namespace) -> dict[str, Any]:
         cli_main(["train", "--task", args.task, "--method", args.method, "--algo", args.algo,
                   "--steps", str(args.steps), "--learning-starts", str(args.learning_starts),
                   "--eval-every", str(10 * args.steps), "--checkpoint-every", str(10 * args.steps),
-                  "--threads", "1", "--seed", str(args.seed), "--quiet", "--out", str(Path(tmp) / "run")])
+                  "--threads", "1", "--seed", str(args.seed), "--quiet", "--out", str(Path(tmp) / "run"),
+                  *(x for kv in args.set for x in ("--set", kv))])
     updates = args.steps - args.learning_starts
     return {"wall_ms_per_update": 1e3 * (marks["t1"] - marks["t0"]) / updates,
             "phases_ms_per_update": {k: 1e3 * v / updates for k, v in frozen["total"].items()},
@@ -125,6 +127,8 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--one-batch-at-a-time", action="store_true")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="configuration override passed to every run, e.g. hars.update_every=16")
     p.add_argument("--worker", metavar="METHOD", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.worker:
@@ -136,7 +140,8 @@ def main() -> None:
         for method in args.methods.split(","):
             cmd = [sys.executable, __file__, "--worker", method, "--task", args.task, "--algo", args.algo,
                    "--steps", str(args.steps), "--learning-starts", str(args.learning_starts),
-                   "--seed", str(args.seed)] + (["--one-batch-at-a-time"] if args.one_batch_at_a_time else [])
+                   "--seed", str(args.seed)] + (["--one-batch-at-a-time"] if args.one_batch_at_a_time else []) + \
+                  [x for kv in args.set for x in ("--set", kv)]
             out = subprocess.run(cmd, capture_output=True, text=True, check=True)
             res = json.loads(out.stdout.strip().splitlines()[-1])
             results[method].append(res)
