@@ -79,9 +79,9 @@ def _worker(args: argparse.Namespace) -> dict[str, Any]:
                     setattr(objects[owner], name, timed(f"{owner}.{name}", getattr(objects[owner], name)))
         update = self.agent.update
 
-        cycle = getattr(getattr(self.reward, "config", None), "update_every", None)
-        if not hasattr(self.reward, "calls"):
-            cycle = None
+        # A source that trains on every k-th update (HARS) counts its updates in ``calls``.
+        cycle = getattr(getattr(self.reward, "config", None), "update_every", None) \
+            if hasattr(self.reward, "calls") else None
 
         def first_and_last(batch: Any, reward: Any) -> Any:
             if self.step == args.learning_starts + 1:
