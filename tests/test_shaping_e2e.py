@@ -6,9 +6,11 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 
 from mira.cli import main
 from mira.factors.examples import example_program
+from mira.runio.checkpoint import load_latest
 from mira.runio.csvlog import read_csv
 
 HARS_COLUMNS = ("phi_mean", "phi_std", "l_align", "l_aux", "attn_entropy", "rpe")
@@ -69,3 +71,38 @@ def test_program_for_another_task_is_a_usage_error(tmp_path: Path, fast_train_ar
     code = main(["train", "--task", "halfcheetah", "--method", "hars", "--steps", "600", "--out",
                  str(tmp_path / "run"), "--program", str(program), *fast_train_args])
     assert code == 2
+
+
+def _tensors(state: object, prefix: str = "") -> dict[str, torch.Tensor]:
+    """Every tensor in a nested checkpoint state, by path."""
+    if isinstance(state, torch.Tensor):
+        return {prefix: state}
+    items = state.items() if isinstance(state, dict) else enumerate(state) if isinstance(state, list | tuple) else ()
+    out: dict[str, torch.Tensor] = {}
+    for key, value in items:
+        out.update(_tensors(value, f"{prefix}/{key}"))
+    return out
+
+
+def test_training_in_background_is_the_same_run(tmp_path: Path, fast_train_args: list[str]) -> None:
+    """HARS's training step on its own thread or on the caller's: the same computation, bit for bit."""
+    runs = {}
+    for background in (True, False):
+        run = tmp_path / f"bg-{background}"
+        code = main(["train", "--task", "halfcheetah", "--method", "hars", "--algo", "sac", "--steps", "1500",
+                     "--seed", "5", "--out", str(run), *fast_train_args, "--set", "hars.update_every=3",
+                     "--set", "hars.tce_every=1", "--set", f"hars.train_in_background={str(background).lower()}"])
+        assert code == 0
+        runs[background] = run
+    rows = {b: read_csv(r / "train.csv") for b, r in runs.items()}
+    assert len(rows[True]) == len(rows[False]) > 0
+    for a, b in zip(rows[True], rows[False], strict=True):
+        assert {k: v for k, v in a.items() if k != "steps_per_s"} == {k: v for k, v in b.items() if k != "steps_per_s"}
+    states = {b: load_latest(r / "checkpoints") for b, r in runs.items()}
+    assert states[True] is not None and states[False] is not None
+    assert states[True][0] == states[False][0]
+    bg, fg = _tensors(states[True][1]["reward"]), _tensors(states[False][1]["reward"])
+    bg.update(_tensors(states[True][1]["agent"], "agent"))
+    fg.update(_tensors(states[False][1]["agent"], "agent"))
+    assert bg.keys() == fg.keys() and any("fab" in k for k in bg)
+    assert all(torch.equal(bg[k], fg[k]) for k in bg)

@@ -11,7 +11,7 @@ from mira.agents.base import AgentConfig
 from mira.loop.hooks import CycleContext
 from mira.loop.trainer import Trainer, TrainSetup
 from mira.replay import Batch
-from mira.rewards.base import RewardSource
+from mira.rewards.base import Relabelled, RewardSource
 from mira.runio.rundir import RunDir
 from mira.tasks.card import load_task
 
@@ -34,7 +34,7 @@ class AheadReward(RewardSource):
     def lookahead(self) -> int:
         return self.ahead
 
-    def relabel_many(self, batches: list[Batch]) -> list[torch.Tensor]:
+    def relabel_many(self, batches: list[Batch]) -> list[Relabelled]:
         self.groups.append([id(b) for b in batches])
         self.alive.extend(batches)
         out = super().relabel_many(batches)

@@ -27,7 +27,7 @@ from mira.loop.hooks import CycleContext, CycleHook
 from mira.loop.metrics import MetricSums
 from mira.loop.rollout import Rollout
 from mira.replay import Batch, ReplayBuffer
-from mira.rewards.base import RewardContext, RewardSource
+from mira.rewards.base import Relabelled, RewardContext, RewardSource, resolve
 from mira.runio.checkpoint import load_latest, save_checkpoint
 from mira.runio.csvlog import rewind_csv
 from mira.runio.rundir import RunDir
@@ -103,7 +103,7 @@ class Trainer:
         self._obs: np.ndarray | None = None
         # Batches sampled and relabelled ahead (see RewardSource.lookahead), with the source's revision
         # when they were relabelled: used one per update, dropped when the revision moves or at a checkpoint.
-        self._ahead: list[tuple[Batch, torch.Tensor]] = []
+        self._ahead: list[tuple[Batch, Relabelled]] = []
         self._ahead_revision = -1
 
     # ----------------------------------------------------------------------------------------- run
@@ -198,6 +198,7 @@ class Trainer:
         bar.close()
         if not self._checkpointed_at(self.step):
             self._checkpoint(final_partial_episode=True)
+        self.reward.close()
         self.run_dir.set_status("finished", self.step)
         self.run_dir.close()
         return TrainResult(self.last_eval, self.step, time.perf_counter() - t_start)
@@ -226,7 +227,8 @@ class Trainer:
             batches = [self.buffer.sample(size, self.rng, complete).to(device) for _ in range(n)]
             self._ahead = list(zip(batches, self.reward.relabel_many(batches), strict=True))
             self._ahead_revision = self.reward.revision
-        return self._ahead.pop(0)
+        batch, reward = self._ahead.pop(0)
+        return batch, resolve(reward)
 
     def _can_sample(self) -> bool:
         if self.reward.needs_complete_episodes:

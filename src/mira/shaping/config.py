@@ -45,11 +45,18 @@ class HarsConfig:
     update_every: int = 8
     """Train (ϕ, φ, ψ) on every this many agent updates; Φ is evaluated afresh for every sampled batch
     all the same (the shaped reward always uses the current Φ, which stays one fixed function, weights
-    and input statistics, between two training steps, and the batches of the updates in between are
-    sampled and shaped together right after a training step). One HARS training step costs about ten
-    times the shaping of one batch, so training on every 8th batch keeps HARS's cost per step near the
-    shaping's own on a CPU (see bench/RESULTS.md, "HARS overhead"). 1 = every update, as in
-    Algorithm 3."""
+    and input statistics, from one training update to the next: the batches of such a cycle are
+    sampled together and shaped in one pass, and a cycle's step lands when the next cycle starts).
+    One HARS training step costs about ten times the shaping of one batch, so training on every 8th
+    batch keeps HARS's cost per step near the shaping's own on a CPU (see bench/RESULTS.md, "HARS
+    overhead"). 1 = every update, as in Algorithm 3."""
+    train_in_background: bool = True
+    """Run each training step of (ϕ, φ, ψ) (losses, backward, Adam) and each cycle's no-grad shaping
+    pass on a second thread while the agent's updates run. The step lands at the next training
+    update either way (until then the batches are shaped by the potential that shaped the step's own
+    batch), so the run is the same computation, bit for bit, with this on or off; on, most of HARS's
+    cost leaves the critical path on a machine with a core to spare (see bench/RESULTS.md, "HARS
+    overhead"). Off: everything on the caller's thread (one core)."""
     vpm_hidden: int = 128
     """Width of the two hidden layers of the Value Potential Mapping MLP (Table 1)."""
     vpm_state_proj: bool = False

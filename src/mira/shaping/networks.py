@@ -21,6 +21,7 @@ the pooled vector (see ``FactorAttentionBlock.forward``; ``reference`` is the li
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import cast
 
@@ -164,6 +165,11 @@ class ValuePotential(nn.Module):
         return torch.mv(h, out.weight[0]) + out.bias
 
 
+def _transposed_copy(w: torch.Tensor) -> torch.Tensor:
+    """``wᵀ`` as a new contiguous tensor (``.contiguous()`` would return ``w`` itself for a vector)."""
+    return w.detach().t().clone(memory_format=torch.contiguous_format)
+
+
 class FrozenPotential:
     """Φ(s) = ``unit · vpm(fab(x, o, ids, meta)[0], o)`` from *raw* factor values ``f`` and states ``obs``,
     with ``x = clamp(f · f_inv + f_shift, ±clip)`` and likewise ``o``: the shaping of sampled batches,
@@ -183,9 +189,11 @@ class FrozenPotential:
                  f_shift: torch.Tensor | None = None, f_inv: torch.Tensor | None = None,
                  o_shift: torch.Tensor | None = None, o_inv: torch.Tensor | None = None,
                  clip: float = math.inf, unit: float = 1.0) -> None:
-        self.fab, self.vpm = fab, vpm
         self.k = int(ids.shape[0])
         self.exact = vpm.state_proj is not None or self.k == 0  # these take the modules' own forward
+        # Copies, like every tensor below: the modules may be trained (on another thread) while this
+        # keeps evaluating the potential they had when it was built.
+        self.modules = (copy.deepcopy(fab), copy.deepcopy(vpm)) if self.exact else None
         self.ids, self.meta, self.unit, self.clip = ids, meta, float(unit), float(clip)
         self.f_affine = None if f_inv is None or f_shift is None else (f_shift, f_inv)
         self.o_affine = None if o_inv is None or o_shift is None else (o_shift, o_inv)
@@ -195,7 +203,7 @@ class FrozenPotential:
         self.scale = ctx[:, : fab.hidden].unsqueeze(1).contiguous()  # [K, 1, H]
         self.shift = ctx[:, fab.hidden :].unsqueeze(1).contiguous()
         q_in, q_norm = cast(nn.Linear, fab.query[0]), cast(nn.LayerNorm, fab.query[1])
-        self.q_weight_t, self.q_bias = q_in.weight.t().contiguous(), q_in.bias.detach().clone()
+        self.q_weight_t, self.q_bias = _transposed_copy(q_in.weight), q_in.bias.detach().clone()
         self.ln = (q_norm.normalized_shape, q_norm.weight.detach().clone(), q_norm.bias.detach().clone(), q_norm.eps)
         a_map, self.a_bias = fab.score_map()
         self.a_map = a_map.contiguous()
@@ -203,7 +211,7 @@ class FrozenPotential:
         w_out = fab.factor_out.weight
         self.v1_weight_t = (first.weight @ w_out).t().contiguous()  # [H, hidden]
         self.v1_bias = torch.addmv(first.bias, first.weight, fab.factor_out.bias)
-        self.v2_weight_t, self.v2_bias = second.weight.t().contiguous(), second.bias.detach().clone()
+        self.v2_weight_t, self.v2_bias = _transposed_copy(second.weight), second.bias.detach().clone()
         self.v3_weight, self.v3_bias = out.weight[0] * self.unit, out.bias * self.unit
 
     def _inputs(self, f: torch.Tensor, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -217,7 +225,9 @@ class FrozenPotential:
         """Φ ``[B]`` from factor values ``f [B, K]`` and states ``obs [B, obs_dim]``."""
         x, o = self._inputs(f, obs)
         if self.exact:
-            return self.vpm(self.fab(x, o, self.ids, self.meta)[0], o) * self.unit
+            assert self.modules is not None
+            fab_copy, vpm_copy = self.modules
+            return vpm_copy(fab_copy(x, o, self.ids, self.meta)[0], o) * self.unit
         # Factor-major [K, B, H], as in FactorAttentionBlock.forward; x made contiguous first (the
         # broadcast multiply-add reads a transposed [B, K] operand at half speed).
         h = F.silu(torch.addcmul(self.shift, x.t().contiguous().unsqueeze(-1), self.scale), inplace=True)

@@ -8,11 +8,20 @@ and returns the PBRS reward of eq. (9) with absorbing terminals,
     r_shape = r_ext + γ · Φ(s′) · (1 − terminated) − Φ(s),
 
 computed from the *current* potential (one forward over the concatenated [s; s′] batch). Φ changes
-only when HARS trains: its weights and the input statistics and σ_R it reads are one fixed function
-between two training steps, so every batch in between is shaped by a :class:`FrozenPotential` built
-once, and the trainer hands those batches over together (``lookahead`` / ``relabel_many``): they are
-sampled right after a training step and shaped in one forward pass. A time-limit truncation is not a
-terminal: there Φ(s′) is kept, exactly as the critic keeps bootstrapping.
+only when a HARS training step lands: its weights and the input statistics and σ_R it reads are one
+fixed function from one training update to the next, so the trainer hands a whole cycle's batches
+over together (``lookahead`` / ``relabel_many``) when the training batch is due: that batch is shaped
+with a graph, the others by a :class:`FrozenPotential` built once, in one forward pass. A time-limit
+truncation is not a terminal: there Φ(s′) is kept, exactly as the critic keeps bootstrapping.
+
+Training beside the agent. The step taken on a cycle's training batch lands at the next cycle's
+training batch (or when Φ is read earlier: the monitor, a checkpoint, a program change; see
+``sync``), so the batches of a cycle are all shaped by the potential that shaped its training batch.
+Nothing on the agent's side waits for that step, which is what lets ``train_in_background`` run it,
+and the cycle's no-grad shaping pass, on a second thread while the agent updates: the step reads
+only what ``update`` hands it and (ϕ, φ, ψ), and the source reads those only after it has landed.
+Where the step runs changes nothing in the computation (``tests/test_shaping_e2e.py`` checks bit
+for bit); it takes HARS's largest costs off the critical path on a machine with a core to spare.
 
 Joint objective (eq. 10). With ``joint=True`` (the default, as in the paper) the reward handed to the
 agent carries gradient into (ϕ, φ): the critic's TD loss L_RL is minimised over the shaping
@@ -50,7 +59,9 @@ from __future__ import annotations
 
 import hashlib
 import math
+import weakref
 from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -60,7 +71,7 @@ import torch
 
 from mira.agents.networks import AdamStepper, make_adam
 from mira.replay import Batch
-from mira.rewards.base import RewardContext, RewardSource
+from mira.rewards.base import Relabelled, RewardContext, RewardSource, resolve
 from mira.shaping.config import HarsConfig
 from mira.shaping.factors import (
     META_DIM,
@@ -120,6 +131,37 @@ def _seeded(seed: int) -> Iterator[None]:
         yield
 
 
+@torch.no_grad()
+def _pbrs_rewards(potential: FrozenPotential, f: torch.Tensor, obs: torch.Tensor, rewards: list[torch.Tensor],
+                  terminated: list[torch.Tensor], gamma: float) -> list[torch.Tensor]:
+    """``r + γ (1 − terminated) Φ(s′) − Φ(s)`` per batch, from one pass of ``potential`` over the
+    batches' factor values ``f`` and states ``obs`` (all the s first, then all the s′)."""
+    phi = potential(f, obs)
+    n, start, out = f.shape[0] // 2, 0, []
+    for r, term in zip(rewards, terminated, strict=True):
+        m = r.shape[0]
+        phi_s, phi_next = phi[start : start + m], phi[n + start : n + start + m]
+        out.append((r - phi_s).addcmul_(1.0 - term, phi_next, value=gamma))
+        start += m
+    return out
+
+
+def _split(job: Future[list[torch.Tensor]], n: int) -> list[Relabelled]:
+    """One Future per element of the list ``job`` will give."""
+    parts: list[Future[torch.Tensor]] = [Future() for _ in range(n)]
+
+    def deliver(done: Future[list[torch.Tensor]]) -> None:
+        error = done.exception()
+        for i, part in enumerate(parts):
+            if error is not None:
+                part.set_exception(error)
+            else:
+                part.set_result(done.result()[i])
+
+    job.add_done_callback(deliver)
+    return list(parts)
+
+
 class HarsReward(RewardSource):
     """Hierarchical Attention-based Reward Shaping (FAB → VPM potential, TCE auxiliary, PBRS)."""
 
@@ -146,6 +188,11 @@ class HarsReward(RewardSource):
         self._norm_cache: tuple[torch.Tensor, ...] | None = None
         self._frozen: FrozenPotential | None = None
         self._revision = 0  # counts changes of Φ (see ``revision``)
+        # The latest training step until it lands (see ``update``): its figures, or the Future of the
+        # thread computing them.
+        self._in_flight: Future[tuple[dict[str, torch.Tensor], torch.Tensor]] | tuple[
+            dict[str, torch.Tensor], torch.Tensor] | None = None
+        self._executor: ThreadPoolExecutor | None = None
 
     # --------------------------------------------------------------------------------- set-up
     def bind(self, ctx: RewardContext) -> None:
@@ -338,14 +385,17 @@ class HarsReward(RewardSource):
         c = self.config.input_clip
         return torch.addcmul(f_shift, f, f_inv).clamp_(-c, c), torch.addcmul(o_shift, obs, o_inv).clamp_(-c, c)
 
-    def _potential_no_grad(self, f: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
-        """Φ of every row, without a graph (the shaping of a batch HARS does not train on)."""
+    def _ensure_frozen(self) -> FrozenPotential:
         if self._frozen is None:
             f_shift, f_inv, meta, o_shift, o_inv = self._norm()
             self._frozen = FrozenPotential(self.fab, self.vpm, self.fab.ids(self._slot_t).detach(), meta,
                                            f_shift=f_shift, f_inv=f_inv, o_shift=o_shift, o_inv=o_inv,
                                            clip=self.config.input_clip, unit=self._unit())
-        return self._frozen(f, obs)
+        return self._frozen
+
+    def _potential_no_grad(self, f: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        """Φ of every row, without a graph (the shaping of a batch HARS does not train on)."""
+        return self._ensure_frozen()(f, obs)
 
     def _forward(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...],
                  ids: torch.Tensor | None = None, n_phi: int | None = None
@@ -373,7 +423,8 @@ class HarsReward(RewardSource):
         b = batch.reward.shape[0]
         cfg = self.config
         if not (torch.is_grad_enabled() and self._trains_now()):
-            return self._shape_frozen([batch])[0]
+            return resolve(self._shape_frozen([batch])[0])
+        self.sync()  # this batch is shaped, with a graph, by the latest weights
         with_tce = cfg.aux_weight > 0 and cfg.tce_window >= 2 and self.updates % max(1, cfg.tce_every) == 0
         if self._unevaluated and (with_tce or self._is_unevaluated[batch.indices].any()):
             self.flush_factors()
@@ -399,37 +450,44 @@ class HarsReward(RewardSource):
         return batch.reward + self.gamma * (1.0 - batch.terminated) * leaf[b:] - leaf[:b]
 
     def lookahead(self) -> int:
-        # Φ is one fixed function until the next training step, so every batch before it can be
-        # shaped now; the training step's own batch is relabelled on its own, with a graph.
+        # Φ is one fixed function from one training update to the next, so the batches of a whole
+        # cycle can be shaped when its training batch is: that one with a graph, the rest in one pass.
         every = max(1, self.config.update_every)
-        return 1 if self._trains_now() else every - self.calls % every
+        if self._last_metrics is None:
+            return 1  # the first training step lands at once: the next batches are shaped after it
+        return every - self.calls % every
 
-    def relabel_many(self, batches: list[Batch]) -> list[torch.Tensor]:
-        """The batches of the updates before the next training step, shaped in one pass of Φ: one
-        forward over a few thousand states costs much less than that many forwards of one batch
-        (fewer dispatches; the agent's updates in between no longer evict Φ's data each time)."""
+    def relabel_many(self, batches: list[Batch]) -> list[Relabelled]:
+        """The batches of the updates until the next training step: the training batch (if it is the
+        first) with a graph, the others in one no-grad pass of Φ, which costs much less than a forward
+        per batch (fewer dispatches, and the agent's updates in between no longer evict Φ's data each
+        time). With ``train_in_background`` that pass runs on the training thread, while the agent
+        updates on the first batch, and the rewards after the first are Futures."""
+        if not batches:
+            return []
         if torch.is_grad_enabled() and self._trains_now():
-            return [self.relabel(b) for b in batches]
-        return self._shape_frozen(batches)
+            first = self.relabel(batches[0])  # lands the step in flight first: the rest see its Φ too
+            return [first, *self._shape_frozen(batches[1:], self.config.train_in_background)]
+        return list(self._shape_frozen(batches, self.config.train_in_background))
 
     @torch.no_grad()
-    def _shape_frozen(self, batches: list[Batch]) -> list[torch.Tensor]:
+    def _shape_frozen(self, batches: list[Batch], background: bool = False) -> list[Relabelled]:
         """PBRS rewards ``r + γ (1 − terminated) Φ(s′) − Φ(s)`` of ``batches`` from one no-grad pass
-        of the current Φ over all their [s; s′] (absorbing terminals; a truncation keeps Φ(s′))."""
+        of the current Φ over all their [s; s′] (absorbing terminals; a truncation keeps Φ(s′)).
+        The inputs are gathered here; with ``background`` the pass runs on the training thread."""
+        if not batches:
+            return []
         idx = np.concatenate([b.indices for b in batches])
         if self._unevaluated and self._is_unevaluated[idx].any():
             self.flush_factors()
         rows = torch.from_numpy(idx)
-        f = torch.cat([self.col_phi.index_select(0, rows), self.col_phi_next.index_select(0, rows)])
+        f = torch.cat([self.col_phi.index_select(0, rows), self.col_phi_next.index_select(0, rows)]).to(self.device)
         obs = torch.cat([*(b.obs for b in batches), *(b.next_obs for b in batches)])
-        phi = self._potential_no_grad(f.to(self.device), obs)
-        n, start, out = idx.shape[0], 0, []
-        for b in batches:
-            m = b.reward.shape[0]
-            phi_s, phi_next = phi[start : start + m], phi[n + start : n + start + m]
-            out.append((b.reward - phi_s).addcmul_(1.0 - b.terminated, phi_next, value=self.gamma))
-            start += m
-        return out
+        rewards, terminated = [b.reward for b in batches], [b.terminated for b in batches]
+        args = (self._ensure_frozen(), f, obs, rewards, terminated, self.gamma)
+        if not background:
+            return list(_pbrs_rewards(*args))
+        return _split(self._train_thread().submit(_pbrs_rewards, *args), len(batches))
 
     # -------------------------------------------------------------------------------- update
     def _trains_now(self) -> bool:
@@ -437,6 +495,14 @@ class HarsReward(RewardSource):
         return self._last_metrics is None or self.calls % max(1, self.config.update_every) == 0
 
     def update(self, batch: Batch, step: int) -> dict[str, torch.Tensor]:
+        """Count the agent's update; on every ``update_every``-th, launch a training step of (ϕ, φ, ψ).
+
+        The step lands (its weights start shaping, its figures are reported) at the next training
+        update, or earlier when Φ is read (:meth:`sync`); until then the batches are shaped by the
+        potential that shaped this one. That is what lets the step run on a second thread
+        (``HarsConfig.train_in_background``) beside the agent's next updates, and it is the same
+        computation either way. The figures returned are those of the latest step that landed.
+        """
         if not self._trains_now():
             assert self._last_metrics is not None
             self.calls += 1
@@ -449,20 +515,65 @@ class HarsReward(RewardSource):
             pending, self._pending = self._pending, None
             assert pending is not None
             pending.leaf = None  # no critic gradient was taken through this forward
+        # Everything the step reads from the source is taken here, on the caller's thread: σ_R, the
+        # previous L_aux, and the no-grad potential that keeps shaping the batches until it lands.
+        self._ensure_frozen()
+        unit, last_l_aux = self._unit(), self._last_l_aux
+        self.updates += 1
+        self.calls += 1
+        first = self._last_metrics is None  # nothing to report yet: this step lands at once
+        if self.config.train_in_background and not first:
+            self._in_flight = self._train_thread().submit(self._train_step, pending, batch, unit, last_l_aux)
+        else:
+            self._in_flight = self._train_step(pending, batch, unit, last_l_aux)
+        if first:
+            self.sync()
+        assert self._last_metrics is not None
+        return self._last_metrics
+
+    def sync(self) -> None:
+        """Land the training step in flight, if any: wait for it, adopt its figures, and let Φ's new
+        weights shape from now on. Every read of Φ (shaping with a graph, ``potential``, monitor
+        helpers, checkpoints, program changes) does this first."""
+        step, self._in_flight = self._in_flight, None
+        if step is None:
+            return
+        metrics, l_aux = step.result() if isinstance(step, Future) else step
+        self._last_metrics, self._last_l_aux = metrics, l_aux
+        self.weights_changed()
+
+    def _train_thread(self) -> ThreadPoolExecutor:
+        if self._executor is None:
+            # One worker, one intra-op thread: the step's ops are small, and it runs beside the agent.
+            self._executor = ThreadPoolExecutor(1, thread_name_prefix="hars-train", initializer=torch.set_num_threads,
+                                                initargs=(1,))
+            weakref.finalize(self, self._executor.shutdown, wait=False)
+        return self._executor
+
+    def close(self) -> None:
+        self.sync()
+        if self._executor is not None:
+            self._executor.shutdown(wait=True)
+            self._executor = None
+
+    def _train_step(self, pending: _Pending, batch: Batch, unit: float, last_l_aux: torch.Tensor
+                    ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """One optimiser step of eq. (10) on ``batch`` from the forward made in ``relabel``; returns the
+        step's figures and the latest L_aux. Reads only its arguments and (ϕ, φ, ψ) and their
+        optimiser, so it may run on another thread while the agent updates."""
         cfg = self.config
         b = batch.reward.shape[0]
         phi_s, phi_n = pending.phi[:b], pending.phi[b:]
         term = batch.terminated
         target = (batch.reward + self.gamma * (1.0 - term) * phi_n).detach()
-        unit = self._unit()  # losses in units of σ_R, so they weigh the same on every task
-        td = (phi_s - target) / unit
+        td = (phi_s - target) / unit  # losses in units of σ_R, so they weigh the same on every task
         l_td = td.pow(2).mean()
         l_term = (term * (phi_n / unit).pow(2)).sum() / term.sum().clamp_min(1.0)
         l_align = l_td + cfg.terminal_weight * l_term
         entropy = attention_entropy(pending.alpha).mean()
         l_aux = self._aux_loss(pending, b)
         if pending.v_ctx is not None:
-            self._last_l_aux = l_aux.detach()
+            last_l_aux = l_aux.detach()
         loss = cfg.align_weight * l_align + cfg.aux_weight * l_aux - cfg.entropy_weight * entropy
         if pending.leaf is not None and pending.leaf.grad is not None:
             # The critic's loss is quadratic in reward units: σ_R² brings it to the alignment loss's units.
@@ -473,23 +584,19 @@ class HarsReward(RewardSource):
                                            cfg.max_grad_norm)
         self._stepper.step()
         self._stepper.zero_grad()
-        self.weights_changed()
-        self.updates += 1
-        self.calls += 1
         with torch.no_grad():
             phi_d = phi_s.detach()
             metrics = {
                 "phi_mean": phi_d.mean(),
                 "phi_std": phi_d.std(unbiased=False),
                 "l_align": l_align.detach(),
-                "l_aux": self._last_l_aux,  # the latest computed value (L_aux runs every tce_every)
+                "l_aux": last_l_aux,  # the latest computed value (L_aux runs every tce_every)
                 "attn_entropy": entropy.detach(),
                 "rpe": l_td.detach() * unit * unit / (target.var(unbiased=False) + 1e-8),
             }
             if self._attn_keys:
                 metrics.update(zip(self._attn_keys, pending.alpha[:b].detach().mean(0).unbind(), strict=True))
-        self._last_metrics = metrics
-        return metrics
+        return metrics, last_l_aux
 
     def _aux_loss(self, pending: _Pending, b: int) -> torch.Tensor:
         if pending.v_ctx is None or pending.ctx_valid is None or pending.v_ctx.shape[0] == 0:
@@ -508,6 +615,7 @@ class HarsReward(RewardSource):
             self._assign_slots(factors.phi_names)
             self.log_fields = BASE_LOG_FIELDS + tuple(f"attn_{n}" for n in factors.phi_names)
             return
+        self.sync()
         self.generation += 1
         self.flush_factors()  # with the old program: its columns are replaced, its rows' states stay in the statistics
         self._install(factors)
@@ -529,6 +637,7 @@ class HarsReward(RewardSource):
     @torch.no_grad()
     def potential(self, obs: np.ndarray | torch.Tensor) -> torch.Tensor:
         """Current Φ(s) of a batch of raw observations ``[B, obs_dim]`` (CPU tensor ``[B]``, no grad)."""
+        self.sync()
         o = self._as_numpy(obs)
         out = []
         for sl in self._chunks(o.shape[0]):
@@ -539,6 +648,7 @@ class HarsReward(RewardSource):
     @torch.no_grad()
     def attention(self, obs: np.ndarray | torch.Tensor) -> dict[str, float]:
         """Mean attention weight α_i per PHI factor name over a batch of raw observations."""
+        self.sync()
         o = self._as_numpy(obs)
         if o.shape[0] == 0 or not self.phi_names:
             return dict.fromkeys(self.phi_names, 0.0)
@@ -559,6 +669,7 @@ class HarsReward(RewardSource):
         (the centroid of what the frozen g_ϕ was trained on, i.e. "a typical factor", favouring none)
         and is normalised by its own mean and std over ``obs``. Metadata comes from the candidate.
         """
+        self.sync()
         o = self._as_numpy(obs)
         names = list(candidate.phi_names)
         vals = candidate.phi(o).astype(np.float64) if names else np.zeros((o.shape[0], 0))
@@ -590,6 +701,7 @@ class HarsReward(RewardSource):
 
     def phi_parameters(self) -> list[torch.nn.Parameter]:
         """ϕ and φ: what a structural edit re-initialises."""
+        self.sync()
         return [*self.fab.parameters(), *self.vpm.parameters()]
 
     def describe(self) -> dict[str, Any]:
@@ -599,6 +711,7 @@ class HarsReward(RewardSource):
                 "program_version": None if prog is None else prog.version}
 
     def state_dict(self) -> dict[str, Any]:
+        self.sync()  # a checkpoint holds the weights with the step taken so far landed
         self.flush_factors()  # a checkpoint holds every stored row's factors (flush points stay the same on resume)
         n = self.ctx.buffer.size
         prog = self.program
@@ -627,6 +740,7 @@ class HarsReward(RewardSource):
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.sync()
         if state["program"] is not None and (self.program is None
                                              or self.program.to_json() != state["program"]):
             from mira.factors.program import FactorProgram
