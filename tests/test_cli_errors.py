@@ -25,6 +25,10 @@ def _run(args: list[str]) -> subprocess.CompletedProcess[str]:
         (["train", "--out", "{tmp}/full"], "not empty"),
         (["train", "--resume", "{tmp}/nothing"], "not a run directory"),
         (["train", "--task", "{tmp}/bad.toml", "--out", "{tmp}/o"], "does not parse"),
+        (["train", "--out", "{tmp}/o", "--set", "hars.update_every=x"], "expected a int like 8"),
+        (["train", "--out", "{tmp}/o", "--set", "hars.train_in_background=yes"], "expected bool or null"),
+        (["train", "--out", "{tmp}/o", "--set", "hars.max_grad_norm=true"], "expected float or null"),
+        (["train", "--out", "{tmp}/o", "--set", "hars.nope=1"], "no field 'nope'"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(tmp_path: Path, args: list[str], needle: str) -> None:

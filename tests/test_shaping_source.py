@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import os
 from pathlib import Path
 
 import numpy as np
@@ -314,3 +315,16 @@ def test_revision_moves_on_a_new_program_and_on_loaded_state() -> None:
     revision = src.revision
     src.set_program(toy_factors(("f_a", "f_d")))
     assert src.revision != revision
+
+
+@pytest.mark.parametrize(("cores", "threads", "setting", "expected"), [
+    (2, 1, None, True), (2, 2, None, False), (8, 4, None, True), (1, 1, None, False),
+    (1, 1, True, True), (8, 1, False, False)])
+def test_background_training_by_default_only_with_a_spare_core(monkeypatch: pytest.MonkeyPatch, cores: int,
+                                                               threads: int, setting: bool | None,
+                                                               expected: bool) -> None:
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cores)), raising=False)
+    monkeypatch.setattr(torch, "get_num_threads", lambda: threads)
+    src = HarsReward(toy_factors(), HarsConfig(train_in_background=setting))
+    assert src.background is expected
+    assert src.describe()["train_in_background"] is expected

@@ -127,7 +127,7 @@ def apply_override(cfg: Any, assignment: str) -> None:
     """Set a nested field from ``dotted.path=value`` (``--set mira.mcm.delta_t=1000``).
 
     The value is parsed as JSON when it can be (numbers, true/false, null, lists), else taken as a
-    string, and must match the type of the field's current value.
+    string, and must fit the field's type (null only where the field is optional).
     """
     from mira.errors import UsageError
 
@@ -149,7 +149,17 @@ def apply_override(cfg: Any, assignment: str) -> None:
         value: Any = json.loads(text)
     except json.JSONDecodeError:
         value = text
-    if isinstance(current, bool):
+    hint_args = typing.get_args(typing.get_type_hints(type(target)).get(leaf, Any))
+    if value is None and type(None) in hint_args:  # an optional field may always be set back to null
+        ok = True
+    elif current is None:  # an optional field now unset: the value must fit its other type
+        allowed = tuple(a for a in hint_args if isinstance(a, type) and a is not type(None))
+        if float in allowed and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        ok = not allowed or (isinstance(value, allowed) and not (isinstance(value, bool) and bool not in allowed))
+        if not ok:
+            raise UsageError(f"--set {path}={text}: expected {' or '.join(a.__name__ for a in allowed)} or null")
+    elif isinstance(current, bool):
         ok = isinstance(value, bool)
     elif isinstance(current, int):
         ok = isinstance(value, int) and not isinstance(value, bool)
@@ -161,7 +171,7 @@ def apply_override(cfg: Any, assignment: str) -> None:
         value = tuple(value) if ok else value
     elif isinstance(current, str):
         ok, value = True, str(value) if not isinstance(value, str) else value
-    else:  # None or other: accept what JSON gave
+    else:  # a type without a check here: accept what JSON gave
         ok = True
     if not ok:
         raise UsageError(f"--set {path}={text}: expected a {type(current).__name__} like {current!r}")

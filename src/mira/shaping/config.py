@@ -50,13 +50,15 @@ class HarsConfig:
     One HARS training step costs about ten times the shaping of one batch, so training on every 8th
     batch keeps HARS's cost per step near the shaping's own on a CPU (see bench/RESULTS.md, "HARS
     overhead"). 1 = every update, as in Algorithm 3."""
-    train_in_background: bool = True
+    train_in_background: bool | None = None
     """Run each training step of (ϕ, φ, ψ) (losses, backward, Adam) and each cycle's no-grad shaping
     pass on a second thread while the agent's updates run. The step lands at the next training
     update either way (until then the batches are shaped by the potential that shaped the step's own
-    batch), so the run is the same computation, bit for bit, with this on or off; on, most of HARS's
-    cost leaves the critical path on a machine with a core to spare (see bench/RESULTS.md, "HARS
-    overhead"). Off: everything on the caller's thread (one core)."""
+    batch), so the run is the same computation, bit for bit, whatever this is; on, most of HARS's
+    cost leaves the critical path when a core is free for it (see bench/RESULTS.md, "HARS
+    overhead"). None (default): on when the process may use more cores than PyTorch's intra-op
+    threads, off otherwise (a pool of intra-op threads on every core would wait at each parallel
+    region for the core the training thread holds). False: everything on the caller's thread."""
     vpm_hidden: int = 128
     """Width of the two hidden layers of the Value Potential Mapping MLP (Table 1)."""
     vpm_state_proj: bool = False

@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 import weakref
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -118,6 +119,15 @@ class _InputSnapshot:
     unit: float
 
 
+def _has_spare_core() -> bool:
+    """Whether this process may run on more cores than PyTorch's intra-op threads use."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return cores > torch.get_num_threads()
+
+
 def _name_seed(*parts: object) -> int:
     digest = hashlib.sha256(":".join(str(p) for p in parts).encode()).digest()
     return int.from_bytes(digest[:8], "little") & ((1 << 63) - 1)
@@ -170,6 +180,9 @@ class HarsReward(RewardSource):
 
     def __init__(self, factors: FactorSource, config: HarsConfig | None = None) -> None:
         self.config = config or HarsConfig()
+        background = self.config.train_in_background
+        self.background = _has_spare_core() if background is None else bool(background)
+        """Whether training steps and shaping passes run on the training thread (see HarsConfig)."""
         self.factors: FactorSource = factors
         self.slots: dict[str, int] = {}
         self._assign_slots(factors.phi_names)
@@ -467,8 +480,8 @@ class HarsReward(RewardSource):
             return []
         if torch.is_grad_enabled() and self._trains_now():
             first = self.relabel(batches[0])  # lands the step in flight first: the rest see its Φ too
-            return [first, *self._shape_frozen(batches[1:], self.config.train_in_background)]
-        return list(self._shape_frozen(batches, self.config.train_in_background))
+            return [first, *self._shape_frozen(batches[1:], self.background)]
+        return list(self._shape_frozen(batches, self.background))
 
     @torch.no_grad()
     def _shape_frozen(self, batches: list[Batch], background: bool = False) -> list[Relabelled]:
@@ -522,7 +535,7 @@ class HarsReward(RewardSource):
         self.updates += 1
         self.calls += 1
         first = self._last_metrics is None  # nothing to report yet: this step lands at once
-        if self.config.train_in_background and not first:
+        if self.background and not first:
             self._in_flight = self._train_thread().submit(self._train_step, pending, batch, unit, last_l_aux)
         else:
             self._in_flight = self._train_step(pending, batch, unit, last_l_aux)
@@ -708,6 +721,7 @@ class HarsReward(RewardSource):
         prog = self.program
         return {"method": self.name, "phi_factors": list(self.factors.phi_names),
                 "aux_factors": list(self.factors.aux_names), "hars": asdict(self.config),
+                "train_in_background": self.background,
                 "program_version": None if prog is None else prog.version}
 
     def state_dict(self) -> dict[str, Any]:
