@@ -4,6 +4,7 @@
     python bench/loop_phases.py --methods sparse,hars,mira --algo ddpg --steps 6000
     python bench/loop_phases.py --methods hars --one-batch-at-a-time   # HARS shaping batch by batch
     python bench/loop_phases.py --set hars.update_every=16            # any configuration override
+    python bench/loop_phases.py --methods sparse,hars,hars+hars.train_in_background=false   # A/B
 
 Each method runs ``mira train`` in a fresh subprocess (learning starts at ``--learning-starts``; no
 evaluation or checkpoint inside the run) with thin timers around the agent's ``update`` and ``act``,
@@ -13,6 +14,10 @@ total and its time per update, the wall time per update of the whole loop and, f
 trains on every k-th update (HARS), the agent's update time by position in that cycle (how much the
 source's work slows the agent's next updates through the caches). Methods are run alternately,
 ``--repeats`` times, so that a machine whose speed drifts hits all of them alike.
+
+A method written ``NAME+KEY=VALUE[+KEY=VALUE...]`` runs NAME with those overrides on top of ``--set``
+(so two settings of one method can be compared in the same alternation). ``--threads`` sets the
+intra-op threads of every run (1 by default).
 
 ``--one-batch-at-a-time`` makes reward sources report a lookahead of 1, i.e. every batch is sampled
 and relabelled right before its update (how the trainer worked before grouped shaping), for A/B runs.
@@ -108,7 +113,7 @@ def _worker(args: argparse.Namespace) -> dict[str, Any]:
         cli_main(["train", "--task", args.task, "--method", args.method, "--algo", args.algo,
                   "--steps", str(args.steps), "--learning-starts", str(args.learning_starts),
                   "--eval-every", str(10 * args.steps), "--checkpoint-every", str(10 * args.steps),
-                  "--threads", "1", "--seed", str(args.seed), "--quiet", "--out", str(Path(tmp) / "run"),
+                  "--threads", str(args.threads), "--seed", str(args.seed), "--quiet", "--out", str(Path(tmp) / "run"),
                   *(x for kv in args.set for x in ("--set", kv))])
     updates = args.steps - args.learning_starts
     return {"wall_ms_per_update": 1e3 * (marks["t1"] - marks["t0"]) / updates,
@@ -126,6 +131,7 @@ def main() -> None:
     p.add_argument("--learning-starts", type=int, default=1000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--repeats", type=int, default=2)
+    p.add_argument("--threads", type=int, default=1)
     p.add_argument("--one-batch-at-a-time", action="store_true")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="configuration override passed to every run, e.g. hars.update_every=16")
@@ -138,10 +144,12 @@ def main() -> None:
     results: dict[str, list[dict[str, Any]]] = collections.defaultdict(list)
     for repeat in range(args.repeats):
         for method in args.methods.split(","):
-            cmd = [sys.executable, __file__, "--worker", method, "--task", args.task, "--algo", args.algo,
+            name, *overrides = method.split("+")
+            cmd = [sys.executable, __file__, "--worker", name, "--task", args.task, "--algo", args.algo,
                    "--steps", str(args.steps), "--learning-starts", str(args.learning_starts),
-                   "--seed", str(args.seed)] + (["--one-batch-at-a-time"] if args.one_batch_at_a_time else []) + \
-                  [x for kv in args.set for x in ("--set", kv)]
+                   "--seed", str(args.seed), "--threads", str(args.threads)] + \
+                  (["--one-batch-at-a-time"] if args.one_batch_at_a_time else []) + \
+                  [x for kv in [*args.set, *overrides] for x in ("--set", kv)]
             out = subprocess.run(cmd, capture_output=True, text=True, check=True)
             res = json.loads(out.stdout.strip().splitlines()[-1])
             results[method].append(res)

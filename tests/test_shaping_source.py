@@ -12,6 +12,7 @@ import torch
 
 from mira.agents import make_agent
 from mira.agents.base import AgentConfig
+from mira.errors import NonFiniteError
 from mira.factors.examples import example_program
 from mira.rewards.base import RewardContext, resolve
 from mira.shaping.config import HarsConfig
@@ -328,3 +329,20 @@ def test_background_training_by_default_only_with_a_spare_core(monkeypatch: pyte
     src = HarsReward(toy_factors(), HarsConfig(train_in_background=setting))
     assert src.background is expected
     assert src.describe()["train_in_background"] is expected
+
+
+@pytest.mark.parametrize("background", [False, True])
+def test_a_non_finite_training_step_stops_the_run_before_its_weights_are_used(background: bool) -> None:
+    src, buf, rng = _filled(config=HarsConfig(update_every=2, train_in_background=background))
+    for step in range(2):  # the first step lands at once; the second update does not train
+        batch = buf.sample(16, rng)
+        src.relabel(batch)
+        src.update(batch, step)
+    with torch.no_grad():
+        src.vpm.mlp[-1].bias.fill_(float("nan"))  # Φ is NaN from here on
+    batch = buf.sample(16, rng)
+    src.relabel(batch)
+    metrics = src.update(batch, 2)  # the step is launched; the figures are the last landed step's
+    assert all(bool(torch.isfinite(v)) for v in metrics.values())
+    with pytest.raises(NonFiniteError, match=r"HARS training step 2 .*non-finite .*l_align"):
+        src.state_dict()  # a checkpoint lands the step first, and refuses it

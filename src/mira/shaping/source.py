@@ -71,6 +71,7 @@ import numpy as np
 import torch
 
 from mira.agents.networks import AdamStepper, make_adam
+from mira.errors import NonFiniteError
 from mira.replay import Batch
 from mira.rewards.base import Relabelled, RewardContext, RewardSource, resolve
 from mira.shaping.config import HarsConfig
@@ -552,6 +553,12 @@ class HarsReward(RewardSource):
         if step is None:
             return
         metrics, l_aux = step.result() if isinstance(step, Future) else step
+        if not bool(torch.isfinite(torch.stack(list(metrics.values()))).all()):
+            # Stop before anything (a checkpoint, the next batch) uses the weights this step produced.
+            bad = sorted(k for k, v in metrics.items() if not bool(torch.isfinite(v)))
+            raise NonFiniteError(f"HARS training step {self.updates} (agent update {self.calls}): non-finite "
+                                 f"{', '.join(bad)}; the run stopped and its last checkpoint is intact: lower "
+                                 "hars.lr or check the reward program, then --resume")
         self._last_metrics, self._last_l_aux = metrics, l_aux
         self.weights_changed()
 
