@@ -143,18 +143,15 @@ def _seeded(seed: int) -> Iterator[None]:
 
 
 @torch.no_grad()
-def _pbrs_rewards(potential: FrozenPotential, f: torch.Tensor, obs: torch.Tensor, rewards: list[torch.Tensor],
-                  terminated: list[torch.Tensor], gamma: float) -> list[torch.Tensor]:
-    """``r + γ (1 − terminated) Φ(s′) − Φ(s)`` per batch, from one pass of ``potential`` over the
-    batches' factor values ``f`` and states ``obs`` (all the s first, then all the s′)."""
+def _pbrs_rewards(potential: FrozenPotential, f: torch.Tensor, obs: torch.Tensor, reward: torch.Tensor,
+                  alive: torch.Tensor, gamma: float, sizes: list[int]) -> list[torch.Tensor]:
+    """``r + γ (1 − terminated) Φ(s′) − Φ(s)`` for batches laid end to end (``reward`` and ``alive =
+    1 − terminated`` concatenated, ``f`` and ``obs`` with all the s first, then all the s′), from one
+    pass of ``potential``; split back into the batches' ``sizes``. A handful of ops whatever the
+    number of batches: on the training thread, each op is one more hand-over of the interpreter."""
     phi = potential(f, obs)
-    n, start, out = f.shape[0] // 2, 0, []
-    for r, term in zip(rewards, terminated, strict=True):
-        m = r.shape[0]
-        phi_s, phi_next = phi[start : start + m], phi[n + start : n + start + m]
-        out.append((r - phi_s).addcmul_(1.0 - term, phi_next, value=gamma))
-        start += m
-    return out
+    n = reward.shape[0]
+    return list((reward - phi[:n]).addcmul_(alive, phi[n:], value=gamma).split(sizes))
 
 
 def _split(job: Future[list[torch.Tensor]], n: int) -> list[Relabelled]:
@@ -497,8 +494,9 @@ class HarsReward(RewardSource):
         rows = torch.from_numpy(idx)
         f = torch.cat([self.col_phi.index_select(0, rows), self.col_phi_next.index_select(0, rows)]).to(self.device)
         obs = torch.cat([*(b.obs for b in batches), *(b.next_obs for b in batches)])
-        rewards, terminated = [b.reward for b in batches], [b.terminated for b in batches]
-        args = (self._ensure_frozen(), f, obs, rewards, terminated, self.gamma)
+        reward = torch.cat([b.reward for b in batches])
+        alive = 1.0 - torch.cat([b.terminated for b in batches])
+        args = (self._ensure_frozen(), f, obs, reward, alive, self.gamma, [b.reward.shape[0] for b in batches])
         if not background:
             return list(_pbrs_rewards(*args))
         return _split(self._train_thread().submit(_pbrs_rewards, *args), len(batches))
