@@ -469,8 +469,8 @@ class HarsReward(RewardSource):
         return every - self.calls % every
 
     def relabel_many(self, batches: list[Batch]) -> list[Relabelled]:
-        """The batches of the updates until the next training step: the training batch (if it is the
-        first) with a graph, the others in one no-grad pass of Φ, which costs much less than a forward
+        """The batches of the updates until the next training step: the first with a graph when it is
+        the training batch, the others in one no-grad pass of Φ, which costs much less than a forward
         per batch (fewer dispatches, and the agent's updates in between no longer evict Φ's data each
         time). With ``train_in_background`` that pass runs on the training thread, while the agent
         updates on the first batch, and the rewards after the first are Futures."""
