@@ -31,6 +31,7 @@ import argparse
 import collections
 import functools
 import json
+import re
 import statistics
 import subprocess
 import sys
@@ -144,7 +145,8 @@ def main() -> None:
     results: dict[str, list[dict[str, Any]]] = collections.defaultdict(list)
     for repeat in range(args.repeats):
         for method in args.methods.split(","):
-            name, *overrides = method.split("+")
+            # "+" starts an override only where a KEY= follows, so values such as 1e+3 stay whole.
+            name, *overrides = re.split(r"\+(?=[A-Za-z_][\w.]*=)", method)
             cmd = [sys.executable, __file__, "--worker", name, "--task", args.task, "--algo", args.algo,
                    "--steps", str(args.steps), "--learning-starts", str(args.learning_starts),
                    "--seed", str(args.seed), "--threads", str(args.threads)] + \
