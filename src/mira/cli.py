@@ -134,7 +134,33 @@ def _environment_facts() -> dict[str, Any]:
     return {"mira": __version__, "python": platform.python_version(), "torch": torch.__version__,
             "gemm_backend": gemm.backend(),  # the agents' float32 products: rerun with MIRA_GEMM set to this
             "numpy": numpy.__version__, "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
-            "platform": platform.platform(), "argv": sys.argv}
+            "platform": platform.platform(), "cpu": _cpu_model(),
+            "cpu_capability": torch.backends.cpu.get_cpu_capability(), "argv": sys.argv}
+
+
+def _cpu_model() -> str:
+    """The CPU's model name. A run's float rounding depends on it (each CPU model gets its own GEMM
+    and vector kernels), so the same seed reproduces a run exactly only on the same kind of CPU."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+# What decides a run's arithmetic besides its configuration and seed: a resumed run that differs in
+# any of them is still a valid run, but no longer the bit-for-bit continuation of the original.
+REPRODUCIBILITY_KEYS = ("cpu", "cpu_capability", "torch", "gemm_backend")
+
+
+def reproducibility_drift(recorded: dict[str, Any], now: dict[str, Any]) -> list[str]:
+    """``"key: recorded -> now"`` for every :data:`REPRODUCIBILITY_KEYS` entry that changed (keys a
+    run directory does not record, from older versions, are skipped)."""
+    return [f"{key}: {recorded[key]!r} -> {now.get(key)!r}" for key in REPRODUCIBILITY_KEYS
+            if key in recorded and recorded[key] != now.get(key)]
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -150,6 +176,11 @@ def cmd_train(args: argparse.Namespace) -> int:
             cfg: TrainConfig = from_dict(TrainConfig, saved["config"])
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise UsageError(f"--resume {path}: config.json is unusable ({exc})") from exc
+        drift = reproducibility_drift(saved.get("environment") or {}, _environment_facts())
+        if drift:
+            logging.getLogger(__name__).warning(
+                "--resume %s on a different machine or software (%s): the run continues from its checkpoint, "
+                "but not bit for bit as it would have where it started", path, "; ".join(drift))
     else:
         if args.out is None:
             raise UsageError("train: --out DIR is required (or --resume DIR)")

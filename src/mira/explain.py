@@ -43,6 +43,11 @@ def explain(run_dir: str | Path) -> str:
         f"{cfg['steps']} steps; status {status.get('status', 'unknown')} at step {status.get('step', '?')}.",
         f"Method: {(cfg_file.get('method') or {}).get('description', cfg['method'])}",
     ]
+    env = cfg_file.get("environment") or {}
+    if env.get("cpu"):
+        # A seed reproduces the run exactly only on this kind of CPU and software (see README).
+        lines.append(f"Machine: {env['cpu']} ({env.get('cpu_capability', '?')}), torch {env.get('torch', '?')}, "
+                     f"GEMM backend {env.get('gemm_backend', '?')}.")
     if evals:
         last = evals[-1]
         best = max(evals, key=lambda r: float(r["return_mean"]))
