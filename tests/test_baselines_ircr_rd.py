@@ -101,7 +101,7 @@ def test_rd_is_zero_before_min_episodes_and_bounded_after() -> None:
     batch = buf.sample(32, np.random.default_rng(0), completed_only=True)
     assert torch.all(src.relabel(batch) == 0.0)
     gen.feed(buf, src, 20)
-    assert src.count == 8 and src.fits > 0
+    assert src.regression.count == 8 and src.fits > 0
     assert torch.isfinite(src.relabel(batch)).all()
     clone = RDReward(RDConfig(min_episodes=5, max_episodes=8))
     clone.bind(src.ctx)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mira.baselines.episodes import EpisodeStore
 from mira.replay import ReplayBuffer
+from mira.rewards.episodes import EpisodeStore
 
 
 def _episode(buf: ReplayBuffer, store: EpisodeStore, length: int, ret: float, ep: int) -> np.ndarray:

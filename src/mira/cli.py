@@ -21,9 +21,10 @@ import torch
 
 from mira import __version__
 from mira.agents import ALGOS
+from mira.agents.base import AgentConfig
 from mira.cli_types import nonneg_int as _nonneg_int
 from mira.cli_types import positive_int as _positive_int
-from mira.config import TrainConfig, apply_override, from_dict, to_dict
+from mira.config import PRESETS, TrainConfig, apply_override, from_dict, to_dict
 from mira.errors import DiskFullError, MiraError, NonFiniteError, UsageError
 from mira.methods import METHODS, build_method
 from mira.tasks.card import builtin_task_names, card_to_dict, load_task
@@ -73,7 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--learning-starts", type=_nonneg_int, default=10_000)
     t.add_argument("--buffer-size", type=_positive_int, default=1_000_000)
     t.add_argument("--batch-size", type=_positive_int, default=256)
-    t.add_argument("--lr", type=float, default=1e-4)
+    t.add_argument("--lr", type=float, default=None,
+                   help=f"learning rate of every network of the agent and of HARS (default {AgentConfig().lr:g})")
+    t.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                   help="a named set of defaults applied before --lr and --set: 'paper' = Table 1 of the "
+                        "paper (lr 1e-4 for the agent and HARS)")
     t.add_argument("--hidden", type=_hidden, default=(256, 256), help="hidden widths, e.g. 256,256")
     t.add_argument("--eval-every", type=_positive_int, default=5_000)
     t.add_argument("--eval-episodes", type=_positive_int, default=10)
@@ -116,7 +121,11 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
         eval_episodes=args.eval_episodes, checkpoint_every=args.checkpoint_every, log_every=args.log_every,
         max_episode_steps=args.max_episode_steps, device=args.device, threads=args.threads, program=args.program,
     )
-    cfg.agent.batch_size, cfg.agent.lr, cfg.agent.hidden = args.batch_size, args.lr, args.hidden
+    for assignment in PRESETS.get(args.preset or "", ()):
+        apply_override(cfg, assignment)
+    cfg.agent.batch_size, cfg.agent.hidden = args.batch_size, args.hidden
+    if args.lr is not None:
+        cfg.agent.lr = cfg.hars.lr = args.lr
     cfg.llm.backend, cfg.llm.base_url, cfg.llm.api_key_env = args.llm, args.base_url, args.api_key_env
     cfg.llm.cache_dir, cfg.llm.offline_only = args.llm_cache, args.llm_offline_only
     for assignment in args.overrides:

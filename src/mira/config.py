@@ -123,6 +123,15 @@ def _is_tuple_hint(hint: Any) -> bool:
     return False
 
 
+PRESETS: dict[str, tuple[str, ...]] = {
+    "paper": ("agent.lr=1e-4", "hars.lr=1e-4"),
+}
+"""Named sets of ``--set`` assignments (``mira train --preset NAME``), applied before ``--lr`` and
+``--set``. ``paper``: Table 1's learning rate for every network (the other Table 1 values are the
+defaults already). The paper's alignment of Φ to the episodic reward is a separate switch,
+``--set hars.alignment=episodic``."""
+
+
 def apply_override(cfg: Any, assignment: str) -> None:
     """Set a nested field from ``dotted.path=value`` (``--set mira.mcm.delta_t=1000``).
 

@@ -26,7 +26,7 @@ _LAZY = {
     "LaReReward": "mira.baselines.lare",
     "ProgramFactors": "mira.baselines.lare",
     "VIBReward": "mira.baselines.vib",
-    "EpisodeStore": "mira.baselines.episodes",
+    "EpisodeStore": "mira.rewards.episodes",
     "build_baseline": "mira.baselines.factory",
     "BASELINES": "mira.baselines.factory",
 }

@@ -2,7 +2,7 @@
 
 * :class:`TrajectoryRewardSource`: a :class:`~mira.rewards.base.RewardSource` that samples only
   transitions of finished episodes, remembers finished episodes as row ranges of the replay buffer
-  (:class:`~mira.baselines.episodes.EpisodeStore`), and logs ``corr_dense`` through the diagnostics
+  (:class:`~mira.rewards.episodes.EpisodeStore`), and logs ``corr_dense`` through the diagnostics
   module (never through its reward).
 * :class:`RunningNorm`: running mean/variance of decoder inputs, updated once per finished episode
   (not per sampled batch, so the reward function only moves at episode boundaries).
@@ -33,9 +33,9 @@ from torch import nn
 
 from mira.baselines.config import DecoderConfig
 from mira.baselines.diagnostics import dense_reward_correlation_for_logging
-from mira.baselines.episodes import EpisodeStore
 from mira.replay import Batch
 from mira.rewards.base import RewardContext, RewardSource
+from mira.rewards.episodes import EpisodeStore
 
 #: Normalised decoder inputs are clipped to this many standard deviations.
 INPUT_CLIP = 10.0

@@ -8,11 +8,32 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+DEFAULT_DECOMPOSED_KAPPA = 0.0
+"""κ under ``decomposed`` alignment when ``shaping_weight`` is None (measured: bench/RESULTS.md)."""
+
 
 @dataclass
 class HarsConfig:
     """The inner-loop reward shaper: FAB (ϕ) → VPM (φ) potential, TCE (ψ) auxiliary, PBRS."""
 
+    alignment: str = "decomposed"
+    """What Φ is TD-aligned to and what the agent's reward is built on. ``decomposed`` (default): the
+    decomposition head's per-step r̂ (L_align's target r̂ + γ(1 − d)Φ(s′); agent reward
+    r̂ + κ(γΦ(s′) − Φ(s))). ``episodic``: the paper's letter, the extrinsic episodic reward r_ext (0 on
+    every step but the last) in both places; it does not learn in the episodic setting (bench/RESULTS.md)."""
+    shaping_weight: float | None = None
+    """κ, the weight of the PBRS term γΦ(s′) − Φ(s) in the agent's reward. None: 1 under ``episodic``
+    alignment (the paper), and under ``decomposed`` the value measured to learn best (see
+    ``DEFAULT_DECOMPOSED_KAPPA`` and bench/RESULTS.md)."""
+    decompose_phi_at: str = "next"
+    """Where the decomposition head reads PHI factors: ``next`` (s′, the state the step's reward was
+    earned into), ``state`` (s) or ``both``. AUX factors are always read at (s, a)."""
+    decompose_ridge: float = 1.0
+    """Ridge weight of the head's episode-sum regression, in standardised units (one pseudo-episode)."""
+    decompose_min_episodes: int = 2
+    """Finished episodes needed before the head's first fit (r̂ is 0 until then)."""
+    decompose_max_episodes: int = 5_000
+    """Episodes whose summed features the head keeps (oldest dropped first)."""
     align_weight: float = 1.0
     """λ of eq. (10): weight of the TD alignment loss L_align (Table 1)."""
     aux_weight: float = 0.1
@@ -65,8 +86,8 @@ class HarsConfig:
     """Concatenate a learned state projection with v before the VPM ("optionally", section 4.2.2)."""
     state_proj_dim: int = 32
     """Width of that state projection (used only with ``vpm_state_proj``)."""
-    lr: float = 1e-4
-    """Adam learning rate of the one optimiser over (ϕ, φ, ψ) (Table 1's shared rate)."""
+    lr: float = 3e-4
+    """Adam learning rate of the one optimiser over (ϕ, φ, ψ) (the field's usual 3e-4; Table 1: 1e-4)."""
     max_grad_norm: float | None = None
     """Clip the joint gradient of (ϕ, φ, ψ) to this norm before the step (None: no clipping)."""
     joint: bool = True
@@ -85,3 +106,9 @@ class HarsConfig:
     """Normalised factor values and observations are clipped to ±this before entering the networks."""
     recompute_chunk: int = 65_536
     """Rows per vectorised pass of ``recompute_all`` (factor re-evaluation after a program change)."""
+
+    def kappa(self) -> float:
+        """The PBRS weight κ in force (see ``shaping_weight``)."""
+        if self.shaping_weight is not None:
+            return float(self.shaping_weight)
+        return 1.0 if self.alignment == "episodic" else DEFAULT_DECOMPOSED_KAPPA

@@ -74,7 +74,9 @@ from mira.agents.networks import AdamStepper, make_adam
 from mira.errors import NonFiniteError
 from mira.replay import Batch
 from mira.rewards.base import Relabelled, RewardContext, RewardSource, resolve
+from mira.rewards.episodes import EpisodeStore
 from mira.shaping.config import HarsConfig
+from mira.shaping.decomposition import DecompositionHead, feature_names
 from mira.shaping.factors import (
     META_DIM,
     FactorMeta,
@@ -95,11 +97,18 @@ STD_FLOOR = 1e-4
 BASE_LOG_FIELDS = ("phi_mean", "phi_std", "l_align", "l_aux", "attn_entropy", "rpe")
 
 
+def _log_fields(config: HarsConfig, factors: FactorSource) -> tuple[str, ...]:
+    names = feature_names(list(factors.phi_names), list(factors.aux_names), config.decompose_phi_at)
+    return (BASE_LOG_FIELDS + tuple(f"attn_{n}" for n in factors.phi_names) + tuple(f"w_{n}" for n in names)
+            + tuple(f"share_{n}" for n in names[:-1]) + ("decomp_r2", "decomp_loss"))
+
+
 @dataclass
 class _Pending:
     """The forward pass made in ``relabel``, reused by ``update`` for the same batch."""
 
     batch: Batch
+    base: torch.Tensor  # [B] the reward Φ is aligned to: r̂ (decomposed) or r_ext (episodic)
     phi: torch.Tensor  # [2B] Φ over [s; s′], with graph
     v: torch.Tensor  # [2B, d_z]
     alpha: torch.Tensor  # [2B, K]
@@ -144,13 +153,15 @@ def _seeded(seed: int) -> Iterator[None]:
 
 @torch.no_grad()
 def _pbrs_rewards(potential: FrozenPotential, f: torch.Tensor, obs: torch.Tensor, reward: torch.Tensor,
-                  alive: torch.Tensor, gamma: float, sizes: list[int]) -> list[torch.Tensor]:
-    """``r + γ (1 − terminated) Φ(s′) − Φ(s)`` for batches laid end to end (``reward`` and ``alive =
+                  alive: torch.Tensor, gamma: float, kappa: float, sizes: list[int]) -> list[torch.Tensor]:
+    """``r + κ(γ (1 − terminated) Φ(s′) − Φ(s))`` for batches laid end to end (``reward`` and ``alive =
     1 − terminated`` concatenated, ``f`` and ``obs`` with all the s first, then all the s′), from one
     pass of ``potential``; split back into the batches' ``sizes``. A handful of ops whatever the
     number of batches: on the training thread, each op is one more hand-over of the interpreter."""
     phi = potential(f, obs)
     n = reward.shape[0]
+    if kappa != 1.0:
+        phi = phi * kappa
     return list((reward - phi[:n]).addcmul_(alive, phi[n:], value=gamma).split(sizes))
 
 
@@ -171,7 +182,8 @@ def _split(job: Future[list[torch.Tensor]], n: int) -> list[Relabelled]:
 
 
 class HarsReward(RewardSource):
-    """Hierarchical Attention-based Reward Shaping (FAB → VPM potential, TCE auxiliary, PBRS)."""
+    """Hierarchical Attention-based Reward Shaping: decomposition head r̂, FAB → VPM potential Φ aligned
+    to r̂, TCE auxiliary; the agent learns from r̂ + κ(γΦ(s′) − Φ(s))."""
 
     name = "hars"
     log_fields: tuple[str, ...] = BASE_LOG_FIELDS
@@ -184,7 +196,11 @@ class HarsReward(RewardSource):
         self.factors: FactorSource = factors
         self.slots: dict[str, int] = {}
         self._assign_slots(factors.phi_names)
-        self.log_fields = BASE_LOG_FIELDS + tuple(f"attn_{n}" for n in factors.phi_names)
+        self.log_fields = _log_fields(self.config, factors)
+        self.kappa = self.config.kappa()
+        """κ, the PBRS term's weight in the agent's reward (see HarsConfig.shaping_weight)."""
+        if self.config.alignment not in ("decomposed", "episodic"):
+            raise ValueError(f"hars.alignment must be 'decomposed' or 'episodic', not {self.config.alignment!r}")
         self.generation = 0
         self.updates = 0
         self.calls = 0  # agent updates seen; HARS trains on every ``update_every``-th
@@ -213,6 +229,7 @@ class HarsReward(RewardSource):
         self.device = ctx.device
         self.obs_dim = int(ctx.obs_dim)
         self.obs_stats = RunningStats(self.obs_dim)
+        self.episodes = EpisodeStore(ctx.buffer, cfg.decompose_max_episodes)
         self._last_l_aux = torch.zeros((), device=self.device)
         with _seeded(_name_seed(ctx.seed, "tce")):
             self.tce = TemporalContextEncoder(cfg.d_z, hidden=cfg.tce_hidden).to(self.device)
@@ -245,6 +262,8 @@ class HarsReward(RewardSource):
         self._flush_at = max(1, min(1024, cap // 2))
         self._meta_static = meta_features(self.phi_names, factors.meta, np.zeros(k), np.zeros(k))[:, :6]
         self._slot_t = torch.tensor([self.slots[n] for n in self.phi_names], dtype=torch.long, device=self.device)
+        self.head = DecompositionHead(self.config, self.phi_names, self.aux_names)
+        self._head_changed()
 
     def _build_phi_nets(self, keep_tce_state: bool) -> None:
         """Fresh FAB (ϕ) and VPM (φ) and a fresh optimiser (keeping ψ's Adam state if asked)."""
@@ -285,7 +304,8 @@ class HarsReward(RewardSource):
 
     @property
     def revision(self) -> int:
-        """Bumped whenever Φ's weights change (a training step, a new program, loaded state)."""
+        """Bumped whenever the agent's reward changes: Φ's weights (a training step, a new program, loaded
+        state) or the decomposition head's fit (after each episode)."""
         return self._revision
 
     # ------------------------------------------------------------------------- factor columns
@@ -302,6 +322,66 @@ class HarsReward(RewardSource):
         sq = float(episode_return) ** 2
         rho = self.config.return_scale_ema
         self.return_sq = sq if self.return_sq is None else (1.0 - rho) * self.return_sq + rho * sq
+        if self.episodes.add(rows, episode_return):
+            self.head.add_episode(self._head_inputs(np.asarray(rows, dtype=np.int64)), float(episode_return))
+            self._head_changed()
+
+    # ------------------------------------------------------------------ decomposition head
+    def _head_inputs(self, rows: np.ndarray) -> np.ndarray:
+        """The head's features ``[N, D]`` of stored rows, from the factor columns."""
+        if self._unevaluated and self._is_unevaluated[rows].any():
+            self.flush_factors()
+        return self.head.features(self._np_phi[rows], self._np_phi_next[rows], self._np_aux[rows])
+
+    def _head_changed(self) -> None:
+        """Take the head's new weights: as tensors for relabelling, as figures for the log."""
+        w = self.head.weights
+        k, k_aux = len(self.phi_names), len(self.aux_names)
+        at = self.config.decompose_phi_at
+        n_s = k if at in ("state", "both") else 0
+        n_n = k if at in ("next", "both") else 0
+        t = torch.from_numpy(w.astype(np.float32))
+        self._w_s, self._w_n = t[:n_s], t[n_s:n_s + n_n]
+        self._w_aux, self._w_bias = t[n_s + n_n:n_s + n_n + k_aux], float(w[-1])
+        self._head_metrics = {name: torch.tensor(v, dtype=torch.float32) for name, v in self.head.figures().items()}
+        self._revision += 1
+
+    def _decomposed(self, rows: torch.Tensor) -> torch.Tensor:
+        """r̂ of stored rows ``[B]`` (their factors must be evaluated), on the source's device."""
+        r = torch.full((rows.shape[0],), self._w_bias, dtype=torch.float32)
+        if self._w_n.numel():
+            r = r.addmv_(self.col_phi_next.index_select(0, rows), self._w_n)
+        if self._w_s.numel():
+            r = r.addmv_(self.col_phi.index_select(0, rows), self._w_s)
+        if self._w_aux.numel():
+            r = r.addmv_(self.col_aux.index_select(0, rows), self._w_aux)
+        return r.to(self.device)
+
+    def _base_reward(self, batch: Batch, rows: torch.Tensor) -> torch.Tensor:
+        """What Φ is aligned to and the agent's reward is built on: r̂, or r_ext (episodic alignment)."""
+        if self.config.alignment == "episodic":
+            return batch.reward
+        return self._decomposed(rows).to(batch.reward.device)
+
+    def decomposed_reward(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray) -> np.ndarray:
+        """r̂ of arbitrary transitions (raw arrays, e.g. a held-out rollout's): ``[N]`` float64."""
+        o, o2 = self._as_numpy(obs), self._as_numpy(next_obs)
+        if o.shape[0] == 0:
+            return np.zeros(0)
+        aux = self.factors.aux(o, np.asarray(actions, dtype=np.float32)) if self.aux_names else np.zeros((len(o), 0))
+        x = self.head.features(self.factors.phi(o), self.factors.phi(o2), aux)
+        return np.asarray(x @ self.head.weights, dtype=np.float64)
+
+    def _refit_head(self) -> None:
+        """A fresh head for the current program, fitted on every stored episode still intact."""
+        self.head = DecompositionHead(self.config, self.phi_names, self.aux_names)
+        self.episodes.prune()
+        start, cap = self.episodes.intact_start(), self.ctx.buffer.capacity
+        for i in range(start, len(self.episodes)):
+            first, n = int(self.episodes.first[i]), int(self.episodes.length[i])
+            rows = (first + np.arange(n)) % cap
+            self.head.add_episode(self._head_inputs(rows), float(self.episodes.returns[i]))
+        self._head_changed()
 
     def on_transition(self, row: int) -> None:
         # Factors are evaluated in vectorised batches of the rows stored since the last flush, when a
@@ -452,13 +532,17 @@ class HarsReward(RewardSource):
             obs = torch.cat([obs, self.ctx.buffer.obs[flat].to(self.device)])
         phi, v_all, alpha_all = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
         v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
+        base = self._base_reward(batch, idx)
+        joint = cfg.joint and self.kappa != 0.0
         leaf = phi.detach()
-        if cfg.joint:
+        if joint:
             leaf.requires_grad_(True)
         v_ctx = v_all[2 * b :].reshape(n_ctx, cfg.tce_window - 1, -1) if past is not None else None
-        self._pending = _Pending(batch, phi, v, alpha, leaf if cfg.joint else None, v_ctx,
+        self._pending = _Pending(batch, base, phi, v, alpha, leaf if joint else None, v_ctx,
                                  None if valid is None else valid.to(self.device))
-        return batch.reward + self.gamma * (1.0 - batch.terminated) * leaf[b:] - leaf[:b]
+        if self.kappa == 0.0:
+            return base
+        return base + self.kappa * (self.gamma * (1.0 - batch.terminated) * leaf[b:] - leaf[:b])
 
     def lookahead(self) -> int:
         # Φ is one fixed function from one training update to the next, so the batches of a whole
@@ -483,20 +567,27 @@ class HarsReward(RewardSource):
 
     @torch.no_grad()
     def _shape_frozen(self, batches: list[Batch], background: bool = False) -> list[Relabelled]:
-        """PBRS rewards ``r + γ (1 − terminated) Φ(s′) − Φ(s)`` of ``batches`` from one no-grad pass
-        of the current Φ over all their [s; s′] (absorbing terminals; a truncation keeps Φ(s′)).
-        The inputs are gathered here; with ``background`` the pass runs on the training thread."""
+        """Agent rewards ``base + κ(γ (1 − terminated) Φ(s′) − Φ(s))`` of ``batches`` from one no-grad
+        pass of the current Φ over all their [s; s′] (absorbing terminals; a truncation keeps Φ(s′)).
+        The inputs and the base rewards are gathered here; with ``background`` the pass runs on the
+        training thread. With κ = 0 there is no pass: the reward is the base reward."""
         if not batches:
             return []
         idx = np.concatenate([b.indices for b in batches])
         if self._unevaluated and self._is_unevaluated[idx].any():
             self.flush_factors()
         rows = torch.from_numpy(idx)
+        sizes = [b.reward.shape[0] for b in batches]
+        if self.config.alignment == "episodic":
+            reward = torch.cat([b.reward for b in batches])
+        else:
+            reward = self._decomposed(rows).to(batches[0].reward.device)
+        if self.kappa == 0.0:
+            return list(reward.split(sizes))
         f = torch.cat([self.col_phi.index_select(0, rows), self.col_phi_next.index_select(0, rows)]).to(self.device)
         obs = torch.cat([*(b.obs for b in batches), *(b.next_obs for b in batches)])
-        reward = torch.cat([b.reward for b in batches])
         alive = 1.0 - torch.cat([b.terminated for b in batches])
-        args = (self._ensure_frozen(), f, obs, reward, alive, self.gamma, [b.reward.shape[0] for b in batches])
+        args = (self._ensure_frozen(), f, obs, reward, alive, self.gamma, self.kappa, sizes)
         if not background:
             return list(_pbrs_rewards(*args))
         return _split(self._train_thread().submit(_pbrs_rewards, *args), len(batches))
@@ -519,7 +610,7 @@ class HarsReward(RewardSource):
             assert self._last_metrics is not None
             self.calls += 1
             self._pending = None
-            return self._last_metrics  # the latest training step's figures
+            return {**self._last_metrics, **self._head_metrics}  # the latest training step's figures
         pending, self._pending = self._pending, None
         if pending is None or pending.batch is not batch:
             with torch.enable_grad():
@@ -541,7 +632,7 @@ class HarsReward(RewardSource):
         if first:
             self.sync()
         assert self._last_metrics is not None
-        return self._last_metrics
+        return {**self._last_metrics, **self._head_metrics}
 
     def sync(self) -> None:
         """Land the training step in flight, if any: wait for it, adopt its figures, and let Φ's new
@@ -583,7 +674,7 @@ class HarsReward(RewardSource):
         b = batch.reward.shape[0]
         phi_s, phi_n = pending.phi[:b], pending.phi[b:]
         term = batch.terminated
-        target = (batch.reward + self.gamma * (1.0 - term) * phi_n).detach()
+        target = (pending.base + self.gamma * (1.0 - term) * phi_n).detach()
         td = (phi_s - target) / unit  # losses in units of σ_R, so they weigh the same on every task
         l_td = td.pow(2).mean()
         l_term = (term * (phi_n / unit).pow(2)).sum() / term.sum().clamp_min(1.0)
@@ -631,13 +722,14 @@ class HarsReward(RewardSource):
         if not self._bound:  # before training: nothing to re-initialise yet
             self.factors = factors
             self._assign_slots(factors.phi_names)
-            self.log_fields = BASE_LOG_FIELDS + tuple(f"attn_{n}" for n in factors.phi_names)
+            self.log_fields = _log_fields(self.config, factors)
             return
         self.sync()
         self.generation += 1
         self.flush_factors()  # with the old program: its columns are replaced, its rows' states stay in the statistics
         self._install(factors)
         self.recompute_all(reset_stats=True)
+        self._refit_head()
         self._build_phi_nets(keep_tce_state=True)
         self._last_metrics = None  # the old program's figures (and attention keys) no longer apply
 
@@ -726,7 +818,9 @@ class HarsReward(RewardSource):
         prog = self.program
         return {"method": self.name, "phi_factors": list(self.factors.phi_names),
                 "aux_factors": list(self.factors.aux_names), "hars": asdict(self.config),
-                "train_in_background": self.background,
+                "train_in_background": self.background, "alignment": self.config.alignment,
+                "kappa": self.kappa,
+                "decomposition": self.head.describe() if self._bound else None,
                 "program_version": None if prog is None else prog.version}
 
     def state_dict(self) -> dict[str, Any]:
@@ -735,7 +829,9 @@ class HarsReward(RewardSource):
         n = self.ctx.buffer.size
         prog = self.program
         return {
-            "format": 1,
+            "format": 2,
+            "episodes": self.episodes.state_dict(),
+            "head": self.head.state_dict(),
             "generation": self.generation,
             "updates": self.updates,
             "calls": self.calls,
@@ -794,6 +890,10 @@ class HarsReward(RewardSource):
         self.col_phi[:n] = cols["phi"]
         self.col_phi_next[:n] = cols["phi_next"]
         self.col_aux[:n] = cols["aux"]
+        if "head" in state:  # format 1 (before the decomposition head): the head starts empty
+            self.episodes.load_state_dict(state["episodes"])
+            self.head.load_state_dict(state["head"])
+            self._head_changed()
         self._pending = None
 
 
