@@ -1,4 +1,5 @@
-"""Learning benchmark: final evaluation return of our methods on HalfCheetah-v5, against SB3's SAC.
+"""Learning benchmark: final evaluation return of our methods on a task (HalfCheetah-v5 by default),
+against SB3's SAC.
 
 Each of our runs is a real ``mira train`` subprocess (so the benchmark measures what users run); the
 Stable-Baselines3 reference (a benchmark-only dependency) trains SAC with the same hyperparameters
@@ -7,6 +8,11 @@ policy, the same evaluation episode seeds). Results go to ``bench/RESULTS.md`` u
 
     python bench/learning.py --methods dense --sb3 --seeds 0,1,2 --steps 50000 --workers 2
     python bench/learning.py --table-only --out bench/runs/learning   # rebuild the table from run dirs
+    python bench/learning.py --table-only --out bench/runs/l100k --steps 100000 --at 50000,100000
+
+The table gives, per method and budget, the interquartile mean over seeds of the final return (the
+mean evaluation return over the final 10% of the budget) with a 95% bootstrap confidence interval,
+and each seed's figure. ``--at`` reads smaller budgets off the same (longer) runs' evaluations.
 
 Every run writes its evaluation curve as it goes (``<out>/<who>-<algo>-s<seed>/eval.csv``, SB3's
 included), so a benchmark stopped by a time limit still yields a table: a run that did not finish
@@ -26,18 +32,19 @@ from pathlib import Path
 
 import numpy as np
 
-from mira.experiments.metrics import asymptotic_performance
+from mira.experiments.metrics import asymptotic_performance, stratified_bootstrap_ci
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_ours(method: str, algo: str, seed: int, steps: int, out: Path, extra: list[str]) -> None:
+def run_ours(method: str, algo: str, seed: int, steps: int, out: Path, extra: list[str],
+             task: str = "halfcheetah", suffix: str = "") -> None:
     """One `mira train` run; its curve is the run directory's own eval.csv."""
-    run = out / f"{method}-{algo}-s{seed}"
+    run = out / f"{method}{suffix}-{algo}-s{seed}"
     if (run / "config.json").exists():  # an interrupted benchmark resumes its runs
         cmd = [sys.executable, "-m", "mira.cli", "train", "--resume", str(run), "--quiet"]
     else:
-        cmd = [sys.executable, "-m", "mira.cli", "train", "--task", "halfcheetah", "--method", method, "--algo", algo,
+        cmd = [sys.executable, "-m", "mira.cli", "train", "--task", task, "--method", method, "--algo", algo,
                "--steps", str(steps), "--seed", str(seed), "--out", str(run), "--overwrite", "--threads", "1",
                "--quiet", *extra]
     subprocess.run(cmd, check=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL)
@@ -103,24 +110,39 @@ def collect(out: Path) -> dict[str, list[tuple[int, list[tuple[int, float]], flo
     return found
 
 
-def table(out: Path, steps: int, header: list[str]) -> str:
-    lines = [*header, "", "| method | final return (mean ± std over seeds) | per-seed | steps reached | wall s / run |",
-             "|---|---|---|---|---|"]
-    for who, runs in collect(out).items():
-        finals = [asymptotic_performance([s for s, _ in curve], [r for _, r in curve], max(s for s, _ in curve))
-                  for _, curve, _ in runs]
-        reached = sorted({max(s for s, _ in curve) for _, curve, _ in runs})
+def final_return(curve: list[tuple[int, float]], budget: int) -> float | None:
+    """Mean evaluation return over the final 10% of ``budget`` (None if the run did not reach it)."""
+    points = [(s, r) for s, r in curve if s <= budget]
+    if not points or max(s for s, _ in points) < budget:
+        return None
+    return asymptotic_performance([s for s, _ in points], [r for _, r in points], budget)
+
+
+def table(out: Path, steps: int, header: list[str], budgets: list[int] | None = None) -> str:
+    budgets = budgets or [steps]
+    lines = [*header, "", "| method | budget | final return: IQM [95% CI] | mean ± std | per seed | seeds | "
+             "wall s / run |", "|---|---|---|---|---|---|---|"]
+    for who, runs in sorted(collect(out).items()):
         walls = [w for _, _, w in runs if np.isfinite(w)]
         wall = f"{np.mean(walls):.0f}" if walls else "-"
-        reach = ", ".join(str(r) for r in reached) + ("" if reached == [steps] else f" (of {steps})")
-        lines.append(f"| {who} | {np.mean(finals):.1f} ± {np.std(finals):.1f} | "
-                     f"{', '.join(f'{v:.0f}' for v in finals)} | {reach} | {wall} |")
+        for budget in budgets:
+            per_seed = sorted((seed, final_return(curve, budget)) for seed, curve, _ in runs)
+            done = [(seed, v) for seed, v in per_seed if v is not None]
+            if not done:
+                continue
+            values = [v for _, v in done]
+            point, lo, hi = stratified_bootstrap_ci([values])
+            lines.append(f"| {who} | {budget // 1000}k | {point:.0f} [{lo:.0f}, {hi:.0f}] | {np.mean(values):.0f} ± "
+                         f"{np.std(values):.0f} | {', '.join(f's{seed} {v:.0f}' for seed, v in done)} | "
+                         f"{len(done)} | {wall} |")
     return "\n".join(lines)
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--methods", default="dense")
+    p.add_argument("--task", default="halfcheetah", help="built-in task or task card (SB3's reference: HalfCheetah)")
+    p.add_argument("--at", default="", help="budgets to tabulate, e.g. 50000,100000 (default: --steps)")
     p.add_argument("--algo", default="sac")
     p.add_argument("--seeds", default="0,1,2")
     p.add_argument("--steps", type=int, default=50_000)
@@ -131,7 +153,8 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=ROOT / "bench" / "runs" / "learning")
     p.add_argument("--train-args", default="", help="extra flags for mira train")
-    p.add_argument("--lr", type=float, default=1e-4, help="every optimiser's learning rate (Table 1: 1e-4)")
+    p.add_argument("--suffix", default="", help="appended to the method in run names, e.g. +kappa1 for a variant")
+    p.add_argument("--lr", type=float, default=3e-4, help="every optimiser's learning rate (Table 1: 1e-4)")
     p.add_argument("--table-only", action="store_true", help="only rebuild the table from the run directories")
     p.add_argument("--commit", default=os.environ.get("MIRA_COMMIT", ""), help="commit to name in the table")
     args = p.parse_args()
@@ -143,22 +166,24 @@ def main() -> None:
         with ProcessPoolExecutor(args.workers) as pool:
             jobs = [pool.submit(run_sb3, seed, args.steps, args.learning_starts, args.eval_every, args.eval_episodes,
                                 args.out, args.lr) for seed in (seeds if args.sb3 else [])]
-            for method in args.methods.split(","):
-                for seed in seeds:
-                    jobs.append(pool.submit(run_ours, method, args.algo, seed, args.steps, args.out, extra))
+            for seed in seeds:  # seed-major: a benchmark stopped early has every method on its first seeds
+                for method in args.methods.split(","):
+                    jobs.append(pool.submit(run_ours, method, args.algo, seed, args.steps, args.out, extra, args.task,
+                                            args.suffix))
             for job in jobs:
                 job.result()
     commit = args.commit or subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                            cwd=ROOT).stdout.strip()
     header = [
-        f"HalfCheetah-v5, {args.algo.upper()}, {args.steps} steps, seeds {args.seeds}, learning starts "
+        f"{args.task}, {args.algo.upper()}, {args.steps} steps, seeds {args.seeds}, learning starts "
         f"{args.learning_starts}, lr {args.lr:g}, eval every {args.eval_every} steps x {args.eval_episodes} episodes; "
         "figure = mean "
         "eval return over the final 10% of the steps reached.",
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, 1 torch thread per run, "
         f"{args.workers} runs in parallel; commit {commit}; extra train flags: {args.train_args or 'none'}.",
     ]
-    text = table(args.out, args.steps, header)
+    budgets = [int(b) for b in args.at.split(",") if b] or [args.steps]
+    text = table(args.out, args.steps, header, budgets)
     print(text)
     (args.out / "table.md").write_text(text + "\n")
 

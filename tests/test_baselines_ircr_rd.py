@@ -29,16 +29,18 @@ def _bind(source: RewardSource, capacity: int = 50_000, obs_dim: int = OBS, act_
 # ----------------------------------------------------------------------------------------- IRCR
 
 
-def test_ircr_credits_are_in_unit_interval_and_ordered_like_returns() -> None:
+def test_ircr_credits_are_in_unit_interval_and_ordered_like_per_step_returns() -> None:
     src = IRCRReward()
     assert src.needs_complete_episodes
     buf = _bind(src)
-    gen = SyntheticEpisodes(OBS, ACT, lambda o, a: o[:, 0] + a[:, 0], seed=3)
-    returns = gen.feed(buf, src, 30)
-    assert (src.r_min, src.r_max) == (min(returns), max(returns))
+    gen = SyntheticEpisodes(OBS, ACT, lambda o, a: o[:, 0] + a[:, 0], seed=3)  # lengths 20-60
+    gen.feed(buf, src, 30)
+    per_step = src.store.returns / src.store.length
+    assert (src.r_min, src.r_max) == (per_step.min(), per_step.max())
     batch = buf.sample(2000, np.random.default_rng(0), completed_only=True)
     credit = src.relabel(batch).numpy()
-    ret = batch.episode_return.numpy()
+    lengths = np.bincount(buf.episode_id[: buf.size].numpy())[batch.episode_id.numpy()]
+    ret = batch.episode_return.numpy() / lengths
     assert credit.min() >= 0.0 and credit.max() <= 1.0
     order = np.argsort(ret, kind="stable")
     assert np.all(np.diff(credit[order]) >= -1e-6)  # monotone in the trajectory's return
@@ -66,13 +68,32 @@ def test_ircr_min_max_follow_the_ring_buffer() -> None:
     gen = SyntheticEpisodes(OBS, ACT, lambda o, a: np.ones(len(o)), min_len=50, max_len=50, seed=0)
     gen.feed(buf, src, 2)  # returns 50, 50
     gen.reward_fn = lambda o, a: 2 * np.ones(len(o))
-    gen.feed(buf, src, 4)  # returns 100: the first two episodes are overwritten
-    assert src.r_min == src.r_max == 100.0
+    gen.feed(buf, src, 4)  # per-step returns 2: the first two episodes are overwritten
+    assert src.r_min == src.r_max == 2.0
     state = src.state_dict()
     clone = IRCRReward()
     clone.bind(src.ctx)
     clone.load_state_dict(state)
-    assert (clone.r_min, clone.r_max) == (100.0, 100.0)
+    assert (clone.r_min, clone.r_max) == (2.0, 2.0)
+    assert np.array_equal(clone.heap_first, src.heap_first) and clone.heap_first.size == 4
+
+
+def test_ircr_keeps_a_heap_of_the_best_trajectories_and_draws_half_of_each_batch_from_it() -> None:
+    src = IRCRReward(IRCRConfig(heap_episodes=3, heap_fraction=0.5))
+    buf = _bind(src)
+    gen = SyntheticEpisodes(OBS, ACT, lambda o, a: o[:, 0] + a[:, 0], seed=5)
+    gen.feed(buf, src, 40)
+    per_step = src.store.returns / src.store.length
+    best = np.sort(per_step)[-3:]
+    np.testing.assert_allclose(np.sort(src.heap_score), best)
+    rows = src.sample_rows(256, np.random.default_rng(0))
+    assert rows.shape == (256,)
+    heap_ep = {int(buf.episode_id[int(f % buf.capacity)]) for f in src.heap_first}
+    from_heap = np.isin(buf.episode_id[torch.from_numpy(rows)].numpy(), list(heap_ep))
+    assert from_heap[128:].all()  # the second half comes from the heap
+    assert from_heap[:128].mean() < 0.5  # the first half is uniform over 40 episodes
+    credit = src.relabel(buf.gather(rows)).numpy()
+    assert credit[128:].mean() > credit[:128].mean()
 
 
 # ------------------------------------------------------------------------------------------- RD

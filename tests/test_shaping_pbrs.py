@@ -10,6 +10,9 @@ from hypothesis import strategies as st
 from mira.shaping.config import HarsConfig
 from mira.shaping.testing import fill_episodes, make_hars, toy_factors
 
+EPISODIC = HarsConfig(alignment="episodic")
+"""The paper's letter: r_ext + γΦ(s′) − Φ(s), the PBRS term on the reward these tests can check by hand."""
+
 
 @settings(max_examples=25, deadline=None)
 @given(
@@ -23,7 +26,7 @@ from mira.shaping.testing import fill_episodes, make_hars, toy_factors
 def test_discounted_shaped_return_telescopes(seed: int, length: int, gamma: float, terminate: bool,
                                              scale: float, sparse: bool) -> None:
     src, buf = make_hars(toy_factors(), seed=seed, gamma=gamma, capacity=64,
-                         config=HarsConfig(vpm_state_proj=bool(seed % 2)))
+                         config=HarsConfig(vpm_state_proj=bool(seed % 2), alignment="episodic"))
     with torch.no_grad():  # an arbitrary potential: random network, random output scale and offset
         last = src.vpm.mlp[-1]
         last.weight.mul_(scale)
@@ -44,7 +47,7 @@ def test_discounted_shaped_return_telescopes(seed: int, length: int, gamma: floa
 
 
 def test_terminal_next_state_has_zero_potential_but_truncation_keeps_it() -> None:
-    src, buf = make_hars(toy_factors())
+    src, buf = make_hars(toy_factors(), config=EPISODIC)
     rng = np.random.default_rng(0)
     (term_rows,) = fill_episodes(src, buf, [5], rng, terminate=True)
     (trunc_rows,) = fill_episodes(src, buf, [5], rng, terminate=False)
@@ -59,7 +62,7 @@ def test_terminal_next_state_has_zero_potential_but_truncation_keeps_it() -> Non
 
 
 def test_relabel_uses_the_current_potential() -> None:
-    src, buf = make_hars(toy_factors())
+    src, buf = make_hars(toy_factors(), config=EPISODIC)
     rng = np.random.default_rng(0)
     fill_episodes(src, buf, [30], rng)
     batch = buf.sample(16, rng)
@@ -77,7 +80,7 @@ def test_relabel_uses_the_current_potential() -> None:
 def test_relabel_after_a_training_step_uses_the_new_weights_and_statistics() -> None:
     """Between two HARS training steps Φ is one fixed function (weights and input statistics); after a
     step the shaping of any batch is the updated modules' own Φ, not a stale cached one."""
-    src, buf = make_hars(toy_factors(), config=HarsConfig(lr=1e-2, update_every=1))  # σ_R moves too
+    src, buf = make_hars(toy_factors(), config=HarsConfig(lr=1e-2, update_every=1, alignment="episodic"))  # σ_R moves too
     rng = np.random.default_rng(1)
     fill_episodes(src, buf, [40], rng)
     batch, probe = buf.sample(32, rng), buf.sample(16, rng)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,8 @@ from mira.tasks.card import load_task
 
 def _filled(seed: int = 0, config: HarsConfig | None = None, capacity: int = 512,
             names: tuple[str, ...] = ("f_a", "f_b", "f_c")) -> tuple[HarsReward, object, np.random.Generator]:
+    # The shaping machinery is tested with the PBRS term on (κ = 1; the default κ is 0).
+    config = replace(config or HarsConfig(), shaping_weight=1.0)
     src, buf = make_hars(toy_factors(names), seed=seed, capacity=capacity, config=config)
     rng = np.random.default_rng(seed)
     fill_episodes(src, buf, [25, 40, 17], rng)
@@ -41,7 +44,9 @@ def _train(src: HarsReward, buf, rng: np.random.Generator, steps: int, batch_siz
 
 def test_update_logs_every_field_and_leaves_no_gradients() -> None:
     src, buf, rng = _filled()
-    assert src.log_fields == (*BASE_LOG_FIELDS, "attn_f_a", "attn_f_b", "attn_f_c")
+    head = ("w_f_a", "w_f_b", "w_f_c", "w_u_ctrl", "w_bias", "share_f_a", "share_f_b", "share_f_c", "share_u_ctrl",
+            "decomp_r2", "decomp_loss")
+    assert src.log_fields == (*BASE_LOG_FIELDS, "attn_f_a", "attn_f_b", "attn_f_c", *head)
     metrics = _train(src, buf, rng, 3)[-1]
     assert set(metrics) == set(src.log_fields)
     assert all(isinstance(v, torch.Tensor) and v.dim() == 0 and torch.isfinite(v) for v in metrics.values())
@@ -84,7 +89,7 @@ def test_joint_gradient_equals_backprop_through_the_critic(algo: str) -> None:
             idx = torch.from_numpy(batch.indices)
             f = torch.cat([src.col_phi[idx], src.col_phi_next[idx]])
             phi = src._forward(f, torch.cat([batch.obs, batch.next_obs]), src._norm(), n_phi=2 * b)[0]
-            agent.update(batch, batch.reward + src.gamma * (1 - batch.terminated) * phi[b:] - phi[:b])
+            agent.update(batch, pend.base + src.gamma * (1 - batch.terminated) * phi[b:] - phi[:b])
             pend.leaf = None
         else:
             agent.update(batch, reward)
@@ -191,7 +196,7 @@ def test_state_round_trip_resumes_bit_identically() -> None:
     raw.seek(0)
     state = torch.load(raw, weights_only=False)
 
-    b, _ = make_hars(toy_factors(), seed=99, capacity=512)  # different init, same buffer below
+    b, _ = make_hars(toy_factors(), seed=99, capacity=512, config=a.config)  # different init, same buffer below
     b.ctx = a.ctx
     b.load_state_dict(state)
     for x, y in ((a.col_phi, b.col_phi), (a.col_phi_next, b.col_phi_next), (a.col_aux, b.col_aux)):
@@ -252,9 +257,11 @@ def test_factor_columns_are_evaluated_before_anything_reads_them() -> None:
     """Rows are evaluated in batches when needed; every reader sees the same values and statistics as
     if each row had been evaluated when it was stored."""
     lazy, buf, rng = _filled(seed=3)
-    eager, _ = make_hars(toy_factors(), seed=3, capacity=512)
+    eager, _ = make_hars(toy_factors(), seed=3, capacity=512, config=HarsConfig(shaping_weight=1.0))
     eager.ctx = lazy.ctx  # the same buffer, evaluated row by row below
-    eager.return_sq = lazy.return_sq  # σ_R comes from episode ends, not from the rows
+    eager.return_sq = lazy.return_sq  # σ_R and the decomposition come from episode ends, not from the rows
+    eager.head = lazy.head
+    eager._head_changed()
     rows = np.arange(buf.size)
     for row in rows:
         eager.on_transition(int(row))
@@ -266,8 +273,12 @@ def test_factor_columns_are_evaluated_before_anything_reads_them() -> None:
         assert torch.equal(x[: buf.size], y[: buf.size])
     np.testing.assert_allclose(lazy.factor_stats.mean, eager.factor_stats.mean, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(lazy.obs_stats.var, eager.obs_stats.var, rtol=1e-9, atol=1e-12)
-    # a stored row is pending until a batch, the statistics or a checkpoint needs it
-    fill_episodes(lazy, buf, [3], rng)
+    # a stored row is pending until a batch, the statistics, an episode's end (the decomposition head
+    # reads the episode's factors) or a checkpoint needs it
+    ep = int(buf.episode_id[buf.pos - 1]) + 1
+    for _ in range(3):
+        state_t = rng.normal(size=buf.obs_dim).astype(np.float32)
+        lazy.on_transition(buf.add(state_t, np.zeros(buf.act_dim, np.float32), 0.0, 0.0, state_t, False, False, ep))
     assert len(lazy._unevaluated) == 3
     state = lazy.state_dict()
     assert not lazy._unevaluated and state["columns"]["phi"].shape[0] == buf.size

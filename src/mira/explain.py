@@ -30,6 +30,19 @@ def _fmt(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.1f}"
 
 
+def _decomposition(train: list[dict[str, str]]) -> list[str]:
+    """The last logged return decomposition (HARS's head): what the returns were found to be made of."""
+    last = next((r for r in reversed(train) if r.get("decomp_r2")), None)
+    if last is None:
+        return []
+    weights = {k[2:]: float(v) for k, v in last.items() if k.startswith("w_") and v not in ("", None)}
+    shares = {k[6:]: float(v) for k, v in last.items() if k.startswith("share_") and v not in ("", None)}
+    parts = ", ".join(f"{n} {w:+.3g}" + (f" ({100 * shares[n]:.0f}%)" if n in shares else "")
+                      for n, w in weights.items())
+    return [f"Return decomposition at step {last['step']} (r̂ = Σ w·factor + bias fitted to episodic returns; "
+            f"weight and share of r̂): {parts}; R² of returns {float(last['decomp_r2']):.3f}."]
+
+
 def explain(run_dir: str | Path) -> str:
     run = Path(run_dir)
     cfg_file = _load(run / "config.json")
@@ -60,6 +73,7 @@ def explain(run_dir: str | Path) -> str:
         engineer = cfg.get("llm", {}).get("backend", "offline")
         who = "the offline rule-based reward engineer (not an LLM)" if engineer == "offline" else engineer
         lines.append(f"Program v0 was written by {who}: {names}.")
+    lines += _decomposition(read_csv(run / "train.csv"))
     diag = read_csv(run / "diagnostics.csv")
     if diag:
         triggers = [r for r in diag if r.get("trigger") == "1"]

@@ -17,8 +17,13 @@ from dataclasses import dataclass, field
 
 @dataclass
 class IRCRConfig:
-    """Iterative relative credit refinement (Gangwani et al. 2020): uniform credit of the normalised return."""
+    """IRCR (Gangwani et al. 2020): uniform credit of the normalised per-step return, half of each batch
+    from a heap of the best trajectories."""
 
+    heap_episodes: int = 10
+    """How many of the best trajectories (by per-step return R/T) the heap keeps."""
+    heap_fraction: float = 0.5
+    """Fraction of every batch drawn from the heap's trajectories (the rest uniformly from the buffer)."""
     equal_credit: float = 0.5
     """Credit given to every transition while all stored returns are equal (min = max): normalisation
     is undefined then, and a constant says nothing about which behaviour is better."""

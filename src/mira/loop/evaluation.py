@@ -47,14 +47,13 @@ def evaluate(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base:
     return EvalResult(np.asarray(returns), np.asarray(lengths), finals)
 
 
-def collect_rollout(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base: int, gamma: float) -> Rollout:
+def collect_rollout(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base: int) -> Rollout:
     """Held-out episodes of the deterministic policy.
 
-    Only the extrinsic, *episodic* reward enters: ``r_ext`` is 0 except at each episode's last step,
-    and the Monte-Carlo value estimate of a state is its discounted episodic return-to-go
-    ``γ^(T-1-t) · R``. The dense per-step reward is not recorded, so nothing downstream can use it.
+    Only the extrinsic, *episodic* reward enters: ``r_ext`` is 0 except at each episode's last step.
+    The dense per-step reward is not recorded, so nothing downstream can use it.
     """
-    obs_l, next_l, act_l, rext_l, term_l, ep_l, mc_l, returns = [], [], [], [], [], [], [], []
+    obs_l, next_l, act_l, rext_l, term_l, ep_l, returns = [], [], [], [], [], [], []
     for k in range(episodes):
         obs, _ = env.reset(seed=seed_base + k)
         done, length = False, 0
@@ -70,9 +69,7 @@ def collect_rollout(agent: Agent, env: EpisodicRewardWrapper, episodes: int, see
             obs = next_obs
             length += 1
             done = terminated or truncated
-        total = float(info["episode_return"])
-        mc_l.append(total * gamma ** np.arange(length - 1, -1, -1, dtype=np.float64))
-        returns.append(total)
+        returns.append(float(info["episode_return"]))
     return Rollout(
         obs=np.asarray(obs_l, dtype=np.float32),
         next_obs=np.asarray(next_l, dtype=np.float32),
@@ -81,5 +78,4 @@ def collect_rollout(agent: Agent, env: EpisodicRewardWrapper, episodes: int, see
         terminated=np.asarray(term_l, dtype=bool),
         episode_index=np.asarray(ep_l),
         returns=np.asarray(returns),
-        mc_values=np.concatenate(mc_l),
     )

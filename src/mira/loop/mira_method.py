@@ -9,7 +9,7 @@ from mira.config import TrainConfig
 from mira.loop.outer import MiraOuterLoop, save_program_version
 from mira.lsfs import backend_from_config
 from mira.methods import MethodParts
-from mira.shaping.method import initial_program
+from mira.shaping.method import describe_shaping, initial_program
 from mira.tasks.card import TaskCard
 from mira.tasks.envs import action_dim
 
@@ -29,5 +29,5 @@ def build_mira(config: TrainConfig, card: TaskCard, run_dir: Path, method: str) 
         backend = backend_from_config(config.llm, run_dir / "llm" / "cache", run_dir)
     outer = MiraOuterLoop(replace(config.mira, mode=mode), card, reward, backend, program, action_dim(card))
     what = {"full": "MCM triggers SRR", "no-mcm": "periodic unguided SRR (no MCM)", "no-srr": "MCM only (no SRR)"}
-    description = f"MIRA ({what[mode]}) over HARS with program v0 ({len(program.factors)} factors)"
+    description = f"MIRA ({what[mode]}) over HARS: {describe_shaping(reward)}"
     return MethodParts(reward, [outer], description)

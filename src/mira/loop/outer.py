@@ -4,8 +4,18 @@ a trigger, and hand an accepted program to the inner loop.
 Each cycle the hook rolls out held-out episodes with the current policy frozen (deterministic, fixed
 episode seeds: the documented protocol), evaluates on those states what the monitor needs — policy
 statistics of this cycle's and the previous cycle's policy on the *same* states, Φ(s), the attention
-over factors, Φ(s') and the extrinsic reward for the residual, and the Monte-Carlo extrinsic value
-(discounted episodic return-to-go) — and packs them into a :class:`~mira.mcm.records.CycleSnapshot`.
+over factors, Φ(s') and the reward Φ is aligned to for the residual (RPE), and a value a state can
+carry — and packs them into a :class:`~mira.mcm.records.CycleSnapshot`.
+
+Which value. In the episodic setting the extrinsic reward is 0 on every step but the last, so its
+discounted return-to-go from state s_t is γ^(T−t)·R: a function of the time left and of the episode's
+return, the same for every state of an episode. Ranking states by it (SRR's proxy-efficacy labels)
+or correlating Φ with it (PVC) measures "how near the end", not "how good a state". Instead the value
+of a held-out state is the discounted return-to-go of the *decomposed* reward r̂ (HARS's head, fitted
+to episodic returns only) along the frozen policy's own rollout: a Monte-Carlo estimate of V^π of r̂,
+which is what Φ approximates under decomposed alignment and what the head says the return is made
+of. It is used for PVC, for SRR's value-quantile labels and its Spearman check. Before the head's
+first fit r̂ is 0 and so is every value (PVC then reads 0).
 On a trigger (or, in the no-MCM ablation, on a fixed schedule) SRR proposes, checks and maybe
 accepts a new program; on acceptance HARS re-initialises ϕ, φ and recomputes the buffer's factors
 while θ and ψ are kept, and the monitor starts its cooldown; on abstention it backs off.
@@ -27,6 +37,7 @@ from mira.llm.base import LLMBackend
 from mira.llm.factory import backend_state_dict, load_backend_state_dict
 from mira.loop.hooks import CycleContext
 from mira.loop.outer_config import OuterLoopConfig
+from mira.loop.rollout import discounted_return_to_go
 from mira.mcm.band import stagnation_band
 from mira.mcm.monitor import MetacognitiveMonitor
 from mira.mcm.records import METRIC_NAMES, CycleSnapshot, MCMResult, row_fields
@@ -88,13 +99,16 @@ class MiraOuterLoop:
         phi_s = self.hars.potential(obs).cpu().numpy().astype(np.float64)
         phi_next = self.hars.potential(next_obs).cpu().numpy().astype(np.float64)
         terminal = rollout.terminated[keep].astype(np.float64)
+        r_hat = self.hars.decomposed_reward(rollout.obs, rollout.actions, rollout.next_obs)
+        values = discounted_return_to_go(r_hat, rollout.episode_index, self.hars.gamma)
+        aligned_to = rollout.r_ext if self.hars.config.alignment == "episodic" else r_hat
         attention = self.hars.attention(obs)
         recent = float(rollout.returns.mean())
         snapshot = CycleSnapshot(
             step=ctx.step, policy_mean=stats.mean.astype(np.float64), policy_log_std=stats.log_std.astype(np.float64),
             squashed=stats.squashed, prev_policy_mean=prev_mean, prev_policy_log_std=prev_log_std,
-            phi_eval=phi_s, value_eval=rollout.mc_values[keep], attention_mean=attention,
-            phi_s=phi_s, r_ext=rollout.r_ext[keep], phi_next=phi_next * (1.0 - terminal), terminal=terminal,
+            phi_eval=phi_s, value_eval=values[keep], attention_mean=attention,
+            phi_s=phi_s, r_ext=aligned_to[keep], phi_next=phi_next * (1.0 - terminal), terminal=terminal,
             smoothed_return=recent, factor_ids_changed=False,
         )
         result = self.monitor.diagnose(snapshot)
@@ -108,7 +122,7 @@ class MiraOuterLoop:
             wants_srr = (self.cycle + 1) % cfg.periodic_cycles == 0 and self.interventions < cfg.periodic_max
         decision = None
         if wants_srr and self.reframer is not None:
-            decision = self._reframe(ctx, result, rollout, keep, attention, recent)
+            decision = self._reframe(ctx, result, rollout, keep, values[keep], attention, recent)
         self.cycle += 1
         out = {"S": float(result.score) if np.isfinite(result.score) else float("nan"),
                "trigger": float(result.trigger), "version": float(self.program.version)}
@@ -116,7 +130,7 @@ class MiraOuterLoop:
             out["accepted"] = float(decision.accepted)
         return out
 
-    def _reframe(self, ctx: CycleContext, result: MCMResult, rollout: Any, keep: np.ndarray,
+    def _reframe(self, ctx: CycleContext, result: MCMResult, rollout: Any, keep: np.ndarray, values: np.ndarray,
                  attention: dict[str, float], recent: float) -> SRRDecision:
         assert self.reframer is not None
         guided = self.config.mode == "full"
@@ -130,6 +144,7 @@ class MiraOuterLoop:
             step=ctx.step, d=ev["d"], d_raw=ev["d_raw"], score=ev["score"], threshold=ev["threshold"],
             gradient=ev["gradient"], contributors=ev["contributors"], recent_return=recent,
             baseline_return=float(result.baseline), stagnation_band=band, attention=attention, guided=guided,
+            decomposition=self.hars.head.describe(),
         )
         folder = ctx.run.interventions / f"{self.interventions:03d}-step{ctx.step}"
         self.interventions += 1
@@ -143,7 +158,7 @@ class MiraOuterLoop:
         sandbox_obs = ctx.buffer.obs[rows].numpy().astype(np.float64)
         sandbox_actions = ctx.buffer.action[rows].numpy().astype(np.float64)
         failpoint("srr.before_call")
-        decision = self.reframer.reframe(folder, self.program, evidence, rollout.obs[keep], rollout.mc_values[keep],
+        decision = self.reframer.reframe(folder, self.program, evidence, rollout.obs[keep], values,
                                          sandbox_obs, sandbox_actions, proxy, seed=ctx.step)
         if decision.accepted:
             old = self.program

@@ -19,5 +19,17 @@ class Rollout:
     terminated: np.ndarray
     episode_index: np.ndarray
     returns: np.ndarray
-    mc_values: np.ndarray
-    """Discounted episodic return-to-go of each state (Monte-Carlo V̂_ext under the frozen policy)."""
+    """Each episode's extrinsic return."""
+
+
+def discounted_return_to_go(rewards: np.ndarray, episode_index: np.ndarray, gamma: float) -> np.ndarray:
+    """``Σ_{k≥t} γ^(k−t) r_k`` within each episode (episodes laid end to end, as in :class:`Rollout`)."""
+    rewards = np.asarray(rewards, dtype=np.float64)
+    out = np.zeros_like(rewards)
+    running = 0.0
+    for t in range(len(rewards) - 1, -1, -1):
+        if t == len(rewards) - 1 or episode_index[t] != episode_index[t + 1]:
+            running = 0.0
+        running = rewards[t] + gamma * running
+        out[t] = running
+    return out

@@ -223,8 +223,8 @@ class Trainer:
         drawn from the buffer as it is now (the last few stored steps join from the next draw on)."""
         if not self._ahead or self._ahead_revision != self.reward.revision:
             n = max(1, self.reward.lookahead())
-            size, complete = self.setup.agent_config.batch_size, self.reward.needs_complete_episodes
-            batches = [self.buffer.sample(size, self.rng, complete).to(device) for _ in range(n)]
+            size = self.setup.agent_config.batch_size
+            batches = [self.buffer.gather(self.reward.sample_rows(size, self.rng)).to(device) for _ in range(n)]
             self._ahead = list(zip(batches, self.reward.relabel_many(batches), strict=True))
             self._ahead_revision = self.reward.revision
         batch, reward = self._ahead.pop(0)
@@ -243,7 +243,7 @@ class Trainer:
     def _cycle_context(self) -> CycleContext:
         def rollout(episodes: int, seed_base: int) -> Rollout:
             seed = self.setup.seed + HOLDOUT_SEED_OFFSET + seed_base
-            return collect_rollout(self.agent, self.eval_env, episodes, seed, self.setup.agent_config.gamma)
+            return collect_rollout(self.agent, self.eval_env, episodes, seed)
 
         return CycleContext(step=self.step, agent=self.agent, buffer=self.buffer, reward=self.reward, run=self.run_dir,
                             last_eval=self.last_eval, rollout=rollout)

@@ -64,6 +64,11 @@ class RewardSource:
     def on_episode_end(self, rows: np.ndarray, episode_return: float) -> None:
         """An episode ended; ``rows`` are its buffer rows (oldest first) and its extrinsic return."""
 
+    def sample_rows(self, batch_size: int, rng: np.random.Generator) -> np.ndarray:
+        """Buffer rows of the next batch: uniform over the buffer (over finished episodes when
+        :attr:`needs_complete_episodes`). A method whose sampling is part of it (IRCR) overrides this."""
+        return self.ctx.buffer.sample_indices(batch_size, rng, self.needs_complete_episodes)
+
     def relabel(self, batch: Batch) -> torch.Tensor:
         """The per-transition reward ``[B]`` the agent learns from."""
         raise NotImplementedError

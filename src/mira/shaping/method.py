@@ -84,5 +84,15 @@ def build_hars(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodPart
     except InadmissibleCodeError as exc:
         raise UsageError(f"factor program v0 is not admissible: {exc}") from exc
     reward = HarsReward(source, config.hars)
-    names = ", ".join(source.phi_names) or "none"
-    return MethodParts(reward, [], f"HARS: learned PBRS potential over PHI factors ({names}), no outer loop")
+    return MethodParts(reward, [], f"HARS: {describe_shaping(reward)}, no outer loop")
+
+
+def describe_shaping(reward: HarsReward) -> str:
+    """One line on what the agent learns from (for ``config.json`` and ``mira explain``)."""
+    names = ", ".join([*reward.factors.phi_names, *reward.factors.aux_names]) or "none"
+    kappa = reward.kappa
+    if reward.config.alignment == "episodic":
+        return (f"episodic reward + {kappa:g}·PBRS of a potential TD-aligned to it (the paper's letter), "
+                f"factors {names}")
+    pbrs = f" + {kappa:g}·PBRS of a potential TD-aligned to it" if kappa else ""
+    return f"per-step reward decomposed from episodic returns over factors ({names}){pbrs}"

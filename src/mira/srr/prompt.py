@@ -48,6 +48,9 @@ class Evidence:
     attention: dict[str, float]
     guided: bool = True
     """False in the no-MCM ablation: no diagnostic vector reaches the prompt."""
+    decomposition: dict[str, Any] | None = None
+    """HARS's return decomposition (section 3's parametric alignment): per-feature weights and shares
+    of r̂, the fit's R² and per-step residual (:meth:`DecompositionHead.describe`); None when absent."""
 
     def as_dict(self) -> dict[str, Any]:
         return dict(vars(self))
@@ -68,12 +71,28 @@ def _factor_block(program: FactorProgram) -> str:
     return "\n".join(lines)
 
 
+def _decomposition_lines(ev: Evidence) -> list[str]:
+    dec = ev.decomposition
+    if not dec or not dec.get("episodes"):
+        return []
+    weights = {k: round(float(v), 4) for k, v in dec["weights"].items()}
+    shares = {k: round(float(v), 3) for k, v in dec["shares"].items()}
+    return [
+        f"RETURN_DECOMPOSITION (episode returns fitted as sums of per-step w·factor + bias over "
+        f"{dec['episodes']} episodes; PHI factors read at {'s′' if dec['phi_at'] == 'next' else dec['phi_at']}):",
+        f"  weights: {json.dumps(weights)}",
+        f"  share_of_reward: {json.dumps(shares)}",
+        f"  r2_of_returns: {float(dec['r2']):.4g}, per_step_residual_rms: {float(dec['per_step_residual_rms']):.4g}",
+    ]
+
+
 def _diagnostics_block(ev: Evidence, hypotheses: list[Hypothesis]) -> str:
     if not ev.guided:
-        return (
-            "DIAGNOSTICS: none (periodic review without diagnostic evidence).\n"
-            f"RECENT_RETURN: {ev.recent_return:.4g} (baseline {ev.baseline_return:.4g})"
-        )
+        return "\n".join([
+            "DIAGNOSTICS: none (periodic review without diagnostic evidence).",
+            f"RECENT_RETURN: {ev.recent_return:.4g} (baseline {ev.baseline_return:.4g})",
+            *_decomposition_lines(ev),
+        ])
     vector = ", ".join(f"{k.upper()}={v:.3f}" for k, v in ev.d.items())
     raw = ", ".join(f"{k.upper()}={v:.4g}" for k, v in ev.d_raw.items())
     lines = [
@@ -98,6 +117,7 @@ def _diagnostics_block(ev: Evidence, hypotheses: list[Hypothesis]) -> str:
     if hypotheses:
         lines.append("  failure_hypotheses (preferred operators):")
         lines += [f"    - {h.operator}: {h.because}" for h in hypotheses]
+    lines += _decomposition_lines(ev)
     return "\n".join(lines)
 
 
@@ -149,6 +169,7 @@ def build_srr_request(
         "guided": evidence.guided,
         "features": [{"name": f.name, "units": f.units, "doc": f.doc} for f in card.features],
         "factor_attention": dict(evidence.attention) if evidence.guided else {},
+        "decomposition": evidence.decomposition,
     }
     return LLMRequest(
         messages=[{"role": "system", "content": system}, {"role": "user", "content": user}],
