@@ -158,3 +158,50 @@ def test_head_state_survives_a_checkpoint_bit_for_bit_and_a_new_program_refits_i
     assert src.head.regression.count == 13
     w = dict(zip(src.head.names, src.head.weights, strict=True))
     assert w["speed"] == pytest.approx(2.0, abs=1e-3)
+
+
+def test_on_a_task_whose_return_is_made_of_the_factors_pvc_is_positive_and_the_program_ranks_states() -> None:
+    """What MCM and SRR read once HARS has learned: the value labels are the return-to-go of r̂ along
+    rollouts (not γ^(T−t)·R), Φ aligned to r̂ correlates with them (PVC > 0) and the current program's
+    proxy potential ranks held-out states by them (AUC > 0.5)."""
+    from mira.loop.rollout import discounted_return_to_go
+    from mira.mcm.metrics import d_pvc
+    from mira.srr.efficacy import proxy_efficacy
+
+    src, buf = make_hars(_factors(), obs_dim=OBS, act_dim=ACT, capacity=20_000,
+                         config=HarsConfig(update_every=1, train_in_background=False, lr=1e-3))
+    rng = np.random.default_rng(7)
+
+    def rollout(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """A Markov chain: speed persists (AR(1)), so a state's value depends on its own speed."""
+        obs = np.zeros((n + 1, OBS), dtype=np.float32)
+        obs[0] = rng.normal(size=OBS)
+        for t in range(n):
+            obs[t + 1] = 0.9 * obs[t] + 0.45 * rng.normal(size=OBS)
+        act = rng.uniform(-1, 1, (n, ACT)).astype(np.float32)
+        return obs, act, _true_reward(obs[1:].astype(np.float64), act.astype(np.float64)), 0.0
+
+    for _ in range(30):
+        obs, act, rew, _ = rollout(100)
+        total = float(rew.sum())
+        ep = int(buf.episode_id[buf.pos - 1]) + 1 if buf.size else 0
+        for t in range(100):
+            last = t == 99
+            src.on_transition(buf.add(obs[t], act[t], total if last else 0.0, float("nan"), obs[t + 1], False, last, ep))
+        src.on_episode_end(buf.finish_episode(total), total)
+    for step in range(400):
+        batch = buf.sample(128, rng)
+        src.relabel(batch)
+        src.update(batch, step)
+    # Held-out episodes, as the outer loop collects them.
+    parts = [rollout(100) for _ in range(4)]
+    obs = np.concatenate([p[0][:-1] for p in parts])
+    next_obs = np.concatenate([p[0][1:] for p in parts])
+    act = np.concatenate([p[1] for p in parts])
+    episode = np.repeat(np.arange(4), 100)
+    values = discounted_return_to_go(src.decomposed_reward(obs, act, next_obs), episode, src.gamma)
+    keep = np.concatenate([np.arange(k * 100, k * 100 + 50) for k in range(4)])  # away from the truncation
+    phi = src.potential(obs[keep]).numpy().astype(np.float64)
+    assert d_pvc(phi, values[keep]) > 0.3
+    eff = proxy_efficacy(src.proxy_potential(src.factors, obs[keep]).numpy(), values[keep], n_perm=200)
+    assert eff.auc > 0.5 and eff.auc_p < 0.05

@@ -85,13 +85,8 @@ from mira.shaping.factors import (
     RunningStats,
     meta_features,
 )
-from mira.shaping.networks import (
-    FactorAttentionBlock,
-    FrozenPotential,
-    TemporalContextEncoder,
-    ValuePotential,
-    attention_entropy,
-)
+from mira.shaping.networks import FactorAttentionBlock, FrozenPotential, TemporalContextEncoder, ValuePotential
+from mira.shaping.objective import hars_objective
 
 STD_FLOOR = 1e-4
 BASE_LOG_FIELDS = ("phi_mean", "phi_std", "l_align", "l_aux", "attn_entropy", "rpe")
@@ -672,18 +667,12 @@ class HarsReward(RewardSource):
         optimiser, so it may run on another thread while the agent updates."""
         cfg = self.config
         b = batch.reward.shape[0]
-        phi_s, phi_n = pending.phi[:b], pending.phi[b:]
-        term = batch.terminated
-        target = (pending.base + self.gamma * (1.0 - term) * phi_n).detach()
-        td = (phi_s - target) / unit  # losses in units of σ_R, so they weigh the same on every task
-        l_td = td.pow(2).mean()
-        l_term = (term * (phi_n / unit).pow(2)).sum() / term.sum().clamp_min(1.0)
-        l_align = l_td + cfg.terminal_weight * l_term
-        entropy = attention_entropy(pending.alpha).mean()
-        l_aux = self._aux_loss(pending, b)
+        terms = hars_objective(cfg, self.tce, phi=pending.phi, v=pending.v, alpha=pending.alpha, v_ctx=pending.v_ctx,
+                               ctx_valid=pending.ctx_valid, reward=pending.base, terminated=batch.terminated,
+                               gamma=self.gamma, unit=unit)
         if pending.v_ctx is not None:
-            last_l_aux = l_aux.detach()
-        loss = cfg.align_weight * l_align + cfg.aux_weight * l_aux - cfg.entropy_weight * entropy
+            last_l_aux = terms.l_aux.detach()
+        loss = terms.loss
         if pending.leaf is not None and pending.leaf.grad is not None:
             # The critic's loss is quadratic in reward units: σ_R² brings it to the alignment loss's units.
             loss = loss + (pending.leaf.grad * pending.phi).sum() / (unit * unit)
@@ -694,27 +683,18 @@ class HarsReward(RewardSource):
         self._stepper.step()
         self._stepper.zero_grad()
         with torch.no_grad():
-            phi_d = phi_s.detach()
+            phi_d = pending.phi[:b].detach()
             metrics = {
                 "phi_mean": phi_d.mean(),
                 "phi_std": phi_d.std(unbiased=False),
-                "l_align": l_align.detach(),
+                "l_align": terms.l_align.detach(),
                 "l_aux": last_l_aux,  # the latest computed value (L_aux runs every tce_every)
-                "attn_entropy": entropy.detach(),
-                "rpe": l_td.detach() * unit * unit / (target.var(unbiased=False) + 1e-8),
+                "attn_entropy": terms.entropy.detach(),
+                "rpe": terms.l_td.detach() * unit * unit / (terms.target.var(unbiased=False) + 1e-8),
             }
             if self._attn_keys:
                 metrics.update(zip(self._attn_keys, pending.alpha[:b].detach().mean(0).unbind(), strict=True))
         return metrics, last_l_aux
-
-    def _aux_loss(self, pending: _Pending, b: int) -> torch.Tensor:
-        if pending.v_ctx is None or pending.ctx_valid is None or pending.v_ctx.shape[0] == 0:
-            return pending.phi.new_zeros(())
-        n = pending.v_ctx.shape[0]
-        pred = self.tce(pending.v_ctx, pending.ctx_valid)
-        err = (pred - pending.v[:n].detach()).pow(2).sum(-1)
-        has_past = pending.ctx_valid[:, -1].to(err.dtype)
-        return (err * has_past).sum() / has_past.sum().clamp_min(1.0)
 
     # ------------------------------------------------------------------ structural update (4.4.5)
     def set_program(self, factors: FactorSource) -> None:
