@@ -187,7 +187,8 @@ def test_on_a_task_whose_return_is_made_of_the_factors_pvc_is_positive_and_the_p
         ep = int(buf.episode_id[buf.pos - 1]) + 1 if buf.size else 0
         for t in range(100):
             last = t == 99
-            src.on_transition(buf.add(obs[t], act[t], total if last else 0.0, float("nan"), obs[t + 1], False, last, ep))
+            row = buf.add(obs[t], act[t], total if last else 0.0, float("nan"), obs[t + 1], False, last, ep)
+            src.on_transition(row)
         src.on_episode_end(buf.finish_episode(total), total)
     for step in range(400):
         batch = buf.sample(128, rng)

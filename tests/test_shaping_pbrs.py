@@ -80,7 +80,8 @@ def test_relabel_uses_the_current_potential() -> None:
 def test_relabel_after_a_training_step_uses_the_new_weights_and_statistics() -> None:
     """Between two HARS training steps Φ is one fixed function (weights and input statistics); after a
     step the shaping of any batch is the updated modules' own Φ, not a stale cached one."""
-    src, buf = make_hars(toy_factors(), config=HarsConfig(lr=1e-2, update_every=1, alignment="episodic"))  # σ_R moves too
+    # σ_R moves too
+    src, buf = make_hars(toy_factors(), config=HarsConfig(lr=1e-2, update_every=1, alignment="episodic"))
     rng = np.random.default_rng(1)
     fill_episodes(src, buf, [40], rng)
     batch, probe = buf.sample(32, rng), buf.sample(16, rng)
@@ -94,7 +95,8 @@ def test_relabel_after_a_training_step_uses_the_new_weights_and_statistics() -> 
     with torch.no_grad():
         after = src.relabel(probe)
         b = probe.reward.shape[0]
-        f = torch.cat([src.col_phi[torch.from_numpy(probe.indices)], src.col_phi_next[torch.from_numpy(probe.indices)]])
+        rows = torch.from_numpy(probe.indices)
+        f = torch.cat([src.columns.phi[rows], src.columns.phi_next[rows]])
         norm = src._norm()
         assert src._snapshot is not None and np.array_equal(src._snapshot.f_mean, src.factor_stats.mean)  # fresh
         phi = src._forward(f, torch.cat([probe.obs, probe.next_obs]), norm)[0]

@@ -87,7 +87,7 @@ def test_joint_gradient_equals_backprop_through_the_critic(algo: str) -> None:
             assert pend is not None
             b = batch.reward.shape[0]
             idx = torch.from_numpy(batch.indices)
-            f = torch.cat([src.col_phi[idx], src.col_phi_next[idx]])
+            f = torch.cat([src.columns.phi[idx], src.columns.phi_next[idx]])
             phi = src._forward(f, torch.cat([batch.obs, batch.next_obs]), src._norm(), n_phi=2 * b)[0]
             agent.update(batch, pend.base + src.gamma * (1 - batch.terminated) * phi[b:] - phi[:b])
             pend.leaf = None
@@ -144,13 +144,13 @@ def test_recompute_all_equals_per_row_values() -> None:
     src, buf, _ = _filled(config=HarsConfig(recompute_chunk=7))
     src.flush_factors()  # rows stored since the last batch needed them are evaluated now
     n = buf.size
-    cols = [c[:n].clone() for c in (src.col_phi, src.col_phi_next, src.col_aux)]
+    cols = [c[:n].clone() for c in (src.columns.phi, src.columns.phi_next, src.columns.aux)]
     running = RunningStats(3)
     running.load_state_dict(src.factor_stats.state_dict())
-    for c in (src.col_phi, src.col_phi_next, src.col_aux):
+    for c in (src.columns.phi, src.columns.phi_next, src.columns.aux):
         c.zero_()
     src.recompute_all()
-    for before, c in zip(cols, (src.col_phi, src.col_phi_next, src.col_aux), strict=True):
+    for before, c in zip(cols, (src.columns.phi, src.columns.phi_next, src.columns.aux), strict=True):
         assert torch.equal(before, c[:n])
     # batch statistics after the reset agree with the per-row running (Welford) ones
     np.testing.assert_allclose(src.factor_stats.mean, running.mean, rtol=1e-9, atol=1e-12)
@@ -178,9 +178,9 @@ def test_set_program_reinitialises_exactly_phi_and_varphi() -> None:
     after = {k: v for m in ("fab", "vpm") for k, v in getattr(src, m).state_dict().items()}
     for k, v in after.items():
         assert not torch.equal(v, phi_before[k]), k
-    assert src.phi_names == ["f_b", "f_d"] and src.col_phi.shape[1] == 2
+    assert src.phi_names == ["f_b", "f_d"] and src.columns.phi.shape[1] == 2
     per_row = new.phi(buf.obs[: buf.size].numpy())
-    np.testing.assert_array_equal(src.col_phi[: buf.size].numpy(), per_row.astype(np.float32))
+    np.testing.assert_array_equal(src.columns.phi[: buf.size].numpy(), per_row.astype(np.float32))
     metrics = _train(src, buf, rng, 2)[-1]
     assert {"attn_f_b", "attn_f_d"} <= set(metrics)
 
@@ -199,7 +199,8 @@ def test_state_round_trip_resumes_bit_identically() -> None:
     b, _ = make_hars(toy_factors(), seed=99, capacity=512, config=a.config)  # different init, same buffer below
     b.ctx = a.ctx
     b.load_state_dict(state)
-    for x, y in ((a.col_phi, b.col_phi), (a.col_phi_next, b.col_phi_next), (a.col_aux, b.col_aux)):
+    for x, y in ((a.columns.phi, b.columns.phi), (a.columns.phi_next, b.columns.phi_next),
+                 (a.columns.aux, b.columns.aux)):
         assert torch.equal(x[: buf.size], y[: buf.size])
     seq = [buf.sample(32, rng) for _ in range(4)]
     for step, batch in enumerate(seq):
@@ -257,8 +258,8 @@ def test_factor_columns_are_evaluated_before_anything_reads_them() -> None:
     """Rows are evaluated in batches when needed; every reader sees the same values and statistics as
     if each row had been evaluated when it was stored."""
     lazy, buf, rng = _filled(seed=3)
-    eager, _ = make_hars(toy_factors(), seed=3, capacity=512, config=HarsConfig(shaping_weight=1.0))
-    eager.ctx = lazy.ctx  # the same buffer, evaluated row by row below
+    eager = HarsReward(toy_factors(), HarsConfig(shaping_weight=1.0))
+    eager.bind(lazy.ctx)  # the same buffer (and seed), evaluated row by row below
     eager.return_sq = lazy.return_sq  # σ_R and the decomposition come from episode ends, not from the rows
     eager.head = lazy.head
     eager._head_changed()
@@ -269,7 +270,8 @@ def test_factor_columns_are_evaluated_before_anything_reads_them() -> None:
     batch = buf.sample(64, rng)
     with torch.no_grad():
         torch.testing.assert_close(lazy.relabel(batch), eager.relabel(batch), rtol=1e-6, atol=1e-6)
-    for x, y in ((lazy.col_phi, eager.col_phi), (lazy.col_phi_next, eager.col_phi_next), (lazy.col_aux, eager.col_aux)):
+    for x, y in ((lazy.columns.phi, eager.columns.phi), (lazy.columns.phi_next, eager.columns.phi_next),
+                 (lazy.columns.aux, eager.columns.aux)):
         assert torch.equal(x[: buf.size], y[: buf.size])
     np.testing.assert_allclose(lazy.factor_stats.mean, eager.factor_stats.mean, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(lazy.obs_stats.var, eager.obs_stats.var, rtol=1e-9, atol=1e-12)
@@ -279,9 +281,9 @@ def test_factor_columns_are_evaluated_before_anything_reads_them() -> None:
     for _ in range(3):
         state_t = rng.normal(size=buf.obs_dim).astype(np.float32)
         lazy.on_transition(buf.add(state_t, np.zeros(buf.act_dim, np.float32), 0.0, 0.0, state_t, False, False, ep))
-    assert len(lazy._unevaluated) == 3
+    assert len(lazy.columns.pending) == 3
     state = lazy.state_dict()
-    assert not lazy._unevaluated and state["columns"]["phi"].shape[0] == buf.size
+    assert not lazy.columns.pending and state["columns"]["phi"].shape[0] == buf.size
 
 
 @pytest.mark.parametrize("every", [1, 4, 8])

@@ -1,58 +1,42 @@
-"""HARS as a reward source: learned potential-based shaping over the PHI factors (section 4.2.2).
+"""HARS as a reward source: the decomposed reward r̂ and a learned potential Φ over the program's factors.
 
-Each stored transition's factors (PHI at s and at s′, AUX at (s, a)) are evaluated once into the
-source's own columns, sized like the replay buffer, in vectorised batches of the rows stored since
-the last batch that needed one of them. When a batch is sampled, ``relabel`` gathers those columns
-and returns the PBRS reward of eq. (9) with absorbing terminals,
+What the agent learns from, for a sampled transition (s, a, s′):
 
-    r_shape = r_ext + γ · Φ(s′) · (1 − terminated) − Φ(s),
+    r = r̂(s, a, s′) + κ · (γ · Φ(s′) · (1 − terminated) − Φ(s)),
 
-computed from the *current* potential (one forward over the concatenated [s; s′] batch). Φ changes
-only when a HARS training step lands: its weights and the input statistics and σ_R it reads are one
-fixed function from one training update to the next, so the trainer hands a whole cycle's batches
-over together (``lookahead`` / ``relabel_many``) when the training batch is due: that batch is shaped
-with a graph, the others by a :class:`FrozenPotential` built once, in one forward pass. A time-limit
-truncation is not a terminal: there Φ(s′) is kept, exactly as the critic keeps bootstrapping.
+with r̂ the decomposition head's per-step reward (:mod:`mira.shaping.decomposition`, fitted to
+episodic returns only) and Φ the FAB → VPM potential TD-aligned to r̂ (:mod:`mira.shaping.objective`).
+κ = 0 by default; under ``hars.alignment=episodic`` (the paper's letter) r̂ is replaced by the episodic
+r_ext in both places and κ = 1. Terminals are absorbing; a time-limit truncation keeps Φ(s′), as the
+critic keeps bootstrapping. The pieces:
 
-Training beside the agent. The step taken on a cycle's training batch lands at the next cycle's
-training batch (or when Φ is read earlier: the monitor, a checkpoint, a program change; see
-``sync``), so the batches of a cycle are all shaped by the potential that shaped its training batch.
-Nothing on the agent's side waits for that step, which is what lets ``train_in_background`` run it,
-and the cycle's no-grad shaping pass, on a second thread while the agent updates: the step reads
-only what ``update`` hands it and (ϕ, φ, ψ), and the source reads those only after it has landed.
-Where the step runs changes nothing in the computation (``tests/test_shaping_e2e.py`` checks bit
-for bit); it takes HARS's largest costs off the critical path on a machine with a core to spare.
+* :mod:`mira.shaping.columns`: each stored transition's factor values, evaluated lazily in batches;
+* :mod:`mira.shaping.decomposition`: r̂ and its weights, the section-3 evidence MCM/SRR read;
+* :mod:`mira.shaping.objective`: λ L_align + μ L_aux − β H(α), on one screen;
+* :mod:`mira.shaping.networks`: FAB (ϕ), VPM (φ), TCE (ψ); ``FactorAttentionBlock.reference`` is the
+  plain definition, ``forward`` and :class:`FrozenPotential` the fast paths (tests check they agree);
+* this module: relabelling, the training schedule, program changes, checkpoints.
 
-Joint objective (eq. 10). With ``joint=True`` (the default, as in the paper) the reward handed to the
-agent carries gradient into (ϕ, φ): the critic's TD loss L_RL is minimised over the shaping
-parameters as well as over θ. The agent steps only its own optimisers; the source's one Adam over
-(ϕ, φ, ψ) takes the step in ``update``. Rather than letting the agent's ``backward`` walk the HARS
-graph, the reward is built from a detached leaf copy of Φ; the agent's backward deposits ∂L_RL/∂Φ
-on that leaf, and ``update`` backpropagates ``λ L_align + μ L_aux − β H(α) + ⟨∂L_RL/∂Φ, Φ⟩``
-through the HARS graph once. By the chain rule this is exactly the gradient of
-``L_RL + λ L_align + μ L_aux − β H(α)`` w.r.t. (ϕ, φ, ψ), with one forward and one backward per step.
+Training schedule (speed, not method). Φ changes only when a HARS training step lands: its weights
+and the input statistics and σ_R it reads are one fixed function from one training update to the next,
+so the trainer hands a whole cycle's batches over together (``lookahead`` / ``relabel_many``) when the
+training batch is due: that batch is shaped with a graph, the others by a :class:`FrozenPotential`
+built once, in one forward pass. The step taken on a cycle's training batch lands at the next cycle's
+training batch (or when Φ is read earlier: the monitor, a checkpoint, a program change; see ``sync``),
+which is what lets ``train_in_background`` run it, and the cycle's no-grad shaping pass, on a second
+thread while the agent updates. Where the step runs changes nothing in the computation
+(``tests/test_shaping_e2e.py`` checks bit for bit). r̂ changes only at episode ends (``revision``).
 
-Why joint, and the alternative: the paper optimises L_inner over (θ, ϕ, ψ, φ) together, so the
-critic's error also shapes Φ (Φ moves towards potentials under which the shaped Bellman targets are
-easier to fit), while L_align anchors Φ to the extrinsic value so that this cannot drift freely.
-PBRS keeps the optimal policy set invariant for *any* Φ, so this coupling changes the learning
-dynamics, never the fixed point of the task. ``joint=False`` gives the common two-timescale variant:
-the agent sees a constant (detached) reward and Φ is fitted by L_align and the regularisers alone,
-which is simpler to reason about and slightly cheaper.
-
-L_align (eq. 11) is the TD loss ``(Φ(s) − (r_ext + γ(1 − d) Φ(s′)))²`` with the target side
-stopped (no leakage of the shaping term: the target uses r_ext) plus ``η · E[Φ(s_T)²]`` over true
-terminal states s_T. L_aux is the TCE's ``‖v_t − v̂_t‖²``, where v̂_t is predicted by a GRU from the
-previous (up to W − 1) aggregations of the same episode (windows built from the buffer's episode id
-and step, masked across episode starts). The target v_t is stop-gradient: otherwise the cheapest
-way to lower L_aux would be to collapse v (make it constant); the context side keeps its gradient,
-so L_aux trains ψ and also nudges ϕ towards temporally predictable (smooth) aggregations. The TCE
-never feeds Φ. It runs on ``tce_batch`` sampled rows every ``tce_every`` updates (its windows are
-evaluated in the same FAB forward as [s; s′]); the logged ``l_aux`` is the latest computed value.
+Joint objective (eq. 10). With ``joint=True`` and κ ≠ 0 the reward handed to the agent carries gradient
+into (ϕ, φ): the critic's TD loss L_RL is minimised over the shaping parameters as well. Rather than
+letting the agent's ``backward`` walk the HARS graph, the reward is built from a detached leaf copy of
+Φ; the agent's backward deposits ∂L_RL/∂Φ on that leaf, and the training step backpropagates
+``objective + ⟨∂L_RL/∂Φ, Φ⟩`` through the HARS graph once: by the chain rule exactly the gradient of
+``L_RL + objective`` w.r.t. (ϕ, φ, ψ). The decomposition head is never trained by either loss.
 
 A structural edit (``set_program``, section 4.4.5) re-initialises ϕ and φ and their optimiser state,
-keeps ψ (and its optimiser state) and never touches the agent, and re-evaluates the new factors on
-every stored transition.
+keeps ψ (and its optimiser state) and never touches the agent, re-evaluates the new factors on every
+stored transition and refits the decomposition head on the stored episodes.
 """
 
 from __future__ import annotations
@@ -75,6 +59,7 @@ from mira.errors import NonFiniteError
 from mira.replay import Batch
 from mira.rewards.base import Relabelled, RewardContext, RewardSource, resolve
 from mira.rewards.episodes import EpisodeStore
+from mira.shaping.columns import FactorColumns
 from mira.shaping.config import HarsConfig
 from mira.shaping.decomposition import DecompositionHead, feature_names
 from mira.shaping.factors import (
@@ -244,17 +229,8 @@ class HarsReward(RewardSource):
         self.aux_names = list(factors.aux_names)
         self._assign_slots(self.phi_names)
         self._attn_keys = [f"attn_{n}" for n in self.phi_names]
-        k, k_aux = len(self.phi_names), len(self.aux_names)
-        cap = self.ctx.buffer.capacity
-        self.col_phi = torch.zeros((cap, k), dtype=torch.float32)
-        self.col_phi_next = torch.zeros((cap, k), dtype=torch.float32)
-        self.col_aux = torch.zeros((cap, k_aux), dtype=torch.float32)
-        self._np_phi, self._np_phi_next, self._np_aux = (
-            self.col_phi.numpy(), self.col_phi_next.numpy(), self.col_aux.numpy())
-        self.factor_stats = RunningStats(k)
-        self._unevaluated: list[int] = []  # rows stored but not yet evaluated (see ``on_transition``)
-        self._is_unevaluated = np.zeros(cap, dtype=bool)
-        self._flush_at = max(1, min(1024, cap // 2))
+        k = len(self.phi_names)
+        self.columns = FactorColumns(factors, self.ctx.buffer, self.obs_stats)
         self._meta_static = meta_features(self.phi_names, factors.meta, np.zeros(k), np.zeros(k))[:, :6]
         self._slot_t = torch.tensor([self.slots[n] for n in self.phi_names], dtype=torch.long, device=self.device)
         self.head = DecompositionHead(self.config, self.phi_names, self.aux_names)
@@ -324,9 +300,7 @@ class HarsReward(RewardSource):
     # ------------------------------------------------------------------ decomposition head
     def _head_inputs(self, rows: np.ndarray) -> np.ndarray:
         """The head's features ``[N, D]`` of stored rows, from the factor columns."""
-        if self._unevaluated and self._is_unevaluated[rows].any():
-            self.flush_factors()
-        return self.head.features(self._np_phi[rows], self._np_phi_next[rows], self._np_aux[rows])
+        return self.head.features(*self.columns.numpy_rows(rows))
 
     def _head_changed(self) -> None:
         """Take the head's new weights: as tensors for relabelling, as figures for the log."""
@@ -345,11 +319,11 @@ class HarsReward(RewardSource):
         """r̂ of stored rows ``[B]`` (their factors must be evaluated), on the source's device."""
         r = torch.full((rows.shape[0],), self._w_bias, dtype=torch.float32)
         if self._w_n.numel():
-            r = r.addmv_(self.col_phi_next.index_select(0, rows), self._w_n)
+            r = r.addmv_(self.columns.phi_next.index_select(0, rows), self._w_n)
         if self._w_s.numel():
-            r = r.addmv_(self.col_phi.index_select(0, rows), self._w_s)
+            r = r.addmv_(self.columns.phi.index_select(0, rows), self._w_s)
         if self._w_aux.numel():
-            r = r.addmv_(self.col_aux.index_select(0, rows), self._w_aux)
+            r = r.addmv_(self.columns.aux.index_select(0, rows), self._w_aux)
         return r.to(self.device)
 
     def _base_reward(self, batch: Batch, rows: torch.Tensor) -> torch.Tensor:
@@ -379,53 +353,21 @@ class HarsReward(RewardSource):
         self._head_changed()
 
     def on_transition(self, row: int) -> None:
-        # Factors are evaluated in vectorised batches of the rows stored since the last flush, when a
-        # batch needs one of them (or before statistics are read, or a checkpoint): one evaluation per
-        # step would run the factor code and the statistics on one row at a time, with cold caches
-        # after each agent update (~0.15 ms a step, more than the arithmetic of a whole batch).
-        self._unevaluated.append(row)
-        self._is_unevaluated[row] = True
-        if len(self._unevaluated) >= self._flush_at:
-            self.flush_factors()
+        self.columns.add(row)
+
+    @property
+    def factor_stats(self) -> RunningStats:
+        """Running statistics of the current program's PHI values (Φ normalises its inputs with them)."""
+        return self.columns.factor_stats
 
     def flush_factors(self) -> None:
-        """Evaluate the factors of every pending row into the columns and fold them into the statistics."""
-        if not self._unevaluated:
-            return
-        rows = np.asarray(self._unevaluated, dtype=np.int64)
-        self._unevaluated = []
-        self._is_unevaluated[rows] = False
-        buf = self.ctx.buffer
-        obs = buf.obs.numpy()[rows]
-        phi_s = self.factors.phi(obs)
-        self._np_phi[rows] = phi_s
-        self._np_phi_next[rows] = self.factors.phi(buf.next_obs.numpy()[rows])
-        if self.aux_names:
-            self._np_aux[rows] = self.factors.aux(obs, buf.action.numpy()[rows])
-        self.factor_stats.update(phi_s)
-        self.obs_stats.update(obs)
+        """Evaluate the factors of every stored row not evaluated yet (see :mod:`mira.shaping.columns`)."""
+        self.columns.flush()
 
     def recompute_all(self, reset_stats: bool = True) -> None:
-        """Re-evaluate every stored transition's factors in vectorised chunks (after a program change).
-
-        With ``reset_stats`` the factor normalisation statistics restart from the stored states.
-        """
-        self.flush_factors()  # pending rows' states still belong in the observation statistics
-        buf = self.ctx.buffer
-        n = buf.size
-        chunk = max(1, self.config.recompute_chunk)
-        stats = RunningStats(len(self.phi_names))
-        for start in range(0, n, chunk):
-            stop = min(n, start + chunk)
-            obs = buf.obs[start:stop].numpy()
-            vals = self.factors.phi(obs)
-            self._np_phi[start:stop] = vals
-            self._np_phi_next[start:stop] = self.factors.phi(buf.next_obs[start:stop].numpy())
-            if self.aux_names:
-                self._np_aux[start:stop] = self.factors.aux(obs, buf.action[start:stop].numpy())
-            stats.update(vals)
-        if reset_stats:
-            self.factor_stats = stats
+        """Re-evaluate every stored transition's factors (after a program change); with ``reset_stats``
+        the factor normalisation statistics restart from the stored states."""
+        self.columns.recompute_all(self.config.recompute_chunk, reset_stats)
 
     # ------------------------------------------------------------------------------- forward
     def _norm(self) -> tuple[torch.Tensor, ...]:
@@ -512,10 +454,12 @@ class HarsReward(RewardSource):
             return resolve(self._shape_frozen([batch])[0])
         self.sync()  # this batch is shaped, with a graph, by the latest weights
         with_tce = cfg.aux_weight > 0 and cfg.tce_window >= 2 and self.updates % max(1, cfg.tce_every) == 0
-        if self._unevaluated and (with_tce or self._is_unevaluated[batch.indices].any()):
-            self.flush_factors()
+        if with_tce:
+            self.columns.flush()  # the windows read rows before the batch's
+        else:
+            self.columns.ensure(batch.indices)
         idx = torch.from_numpy(batch.indices)
-        f = torch.cat([self.col_phi.index_select(0, idx), self.col_phi_next.index_select(0, idx)])
+        f = torch.cat([self.columns.phi.index_select(0, idx), self.columns.phi_next.index_select(0, idx)])
         obs = torch.cat([batch.obs, batch.next_obs])
         n_ctx = 0
         past = valid = None
@@ -523,7 +467,7 @@ class HarsReward(RewardSource):
             n_ctx = b if cfg.tce_batch is None else min(b, cfg.tce_batch)
             past, valid = self._window_rows(batch.indices[:n_ctx])
             flat = past.reshape(-1)
-            f = torch.cat([f.to(self.device), self.col_phi[flat].to(self.device)])
+            f = torch.cat([f.to(self.device), self.columns.phi[flat].to(self.device)])
             obs = torch.cat([obs, self.ctx.buffer.obs[flat].to(self.device)])
         phi, v_all, alpha_all = self._forward(f.to(self.device), obs, self._norm(), n_phi=2 * b)
         v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
@@ -569,8 +513,7 @@ class HarsReward(RewardSource):
         if not batches:
             return []
         idx = np.concatenate([b.indices for b in batches])
-        if self._unevaluated and self._is_unevaluated[idx].any():
-            self.flush_factors()
+        self.columns.ensure(idx)
         rows = torch.from_numpy(idx)
         sizes = [b.reward.shape[0] for b in batches]
         if self.config.alignment == "episodic":
@@ -579,7 +522,8 @@ class HarsReward(RewardSource):
             reward = self._decomposed(rows).to(batches[0].reward.device)
         if self.kappa == 0.0:
             return list(reward.split(sizes))
-        f = torch.cat([self.col_phi.index_select(0, rows), self.col_phi_next.index_select(0, rows)]).to(self.device)
+        cols = self.columns
+        f = torch.cat([cols.phi.index_select(0, rows), cols.phi_next.index_select(0, rows)]).to(self.device)
         obs = torch.cat([*(b.obs for b in batches), *(b.next_obs for b in batches)])
         alive = 1.0 - torch.cat([b.terminated for b in batches])
         args = (self._ensure_frozen(), f, obs, reward, alive, self.gamma, self.kappa, sizes)
@@ -805,8 +749,7 @@ class HarsReward(RewardSource):
 
     def state_dict(self) -> dict[str, Any]:
         self.sync()  # a checkpoint holds the weights with the step taken so far landed
-        self.flush_factors()  # a checkpoint holds every stored row's factors (flush points stay the same on resume)
-        n = self.ctx.buffer.size
+        columns = self.columns.state_dict()  # evaluates pending rows first (flush points stay the same on resume)
         prog = self.program
         return {
             "format": 2,
@@ -830,8 +773,7 @@ class HarsReward(RewardSource):
             "factor_stats": self.factor_stats.state_dict(),
             "obs_stats": self.obs_stats.state_dict(),
             "input_snapshot": None if self._snapshot is None else asdict(self._snapshot),
-            "columns": {"phi": self.col_phi[:n].clone(), "phi_next": self.col_phi_next[:n].clone(),
-                        "aux": self.col_aux[:n].clone()},
+            "columns": columns,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -865,11 +807,7 @@ class HarsReward(RewardSource):
         self.weights_changed()
         snap = state.get("input_snapshot")
         self._snapshot = None if snap is None else _InputSnapshot(**snap)
-        cols = state["columns"]
-        n = cols["phi"].shape[0]
-        self.col_phi[:n] = cols["phi"]
-        self.col_phi_next[:n] = cols["phi_next"]
-        self.col_aux[:n] = cols["aux"]
+        self.columns.load_state_dict(state["columns"])
         if "head" in state:  # format 1 (before the decomposition head): the head starts empty
             self.episodes.load_state_dict(state["episodes"])
             self.head.load_state_dict(state["head"])
