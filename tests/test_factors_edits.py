@@ -27,7 +27,7 @@ from mira.factors import (
     edit_from_json,
     example_program,
 )
-from mira.factors.checker import reads_action
+from mira.factors.syntax import reads_action
 from mira.tasks import load_task
 
 CARDS = {name: load_task(name, check_env=False) for name in ("halfcheetah", "humanoidstandup")}

@@ -15,90 +15,33 @@ import platform
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import torch
 
 from mira import __version__
-from mira.agents import ALGOS
-from mira.agents.base import AgentConfig
-from mira.cli_types import nonneg_int as _nonneg_int
-from mira.cli_types import positive_int as _positive_int
-from mira.config import PRESETS, TrainConfig, apply_override, from_dict, to_dict
+from mira.cli_types import Parser
+from mira.config import TrainConfig, from_dict, to_dict
 from mira.errors import DiskFullError, MiraError, NonFiniteError, UsageError
-from mira.methods import METHODS, build_method
-from mira.tasks.card import builtin_task_names, card_to_dict, load_task
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports errors on one line (exit 2) instead of a usage dump."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-def _hidden(text: str) -> tuple[int, ...]:
-    try:
-        widths = tuple(int(w) for w in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated widths like 256,256, got {text!r}") from None
-    if not widths or any(w <= 0 for w in widths):
-        raise argparse.ArgumentTypeError(f"widths must be positive, got {text!r}")
-    return widths
-
-
-def _add_llm_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--llm", default="offline", metavar="BACKEND",
-                   help="offline (rule-based engineer, default), script:FILE, or openai:MODEL")
-    p.add_argument("--base-url", default=None, help="OpenAI-compatible endpoint (default: $MIRA_BASE_URL)")
-    p.add_argument("--api-key-env", default="OPENAI_API_KEY", help="environment variable holding the API key")
-    p.add_argument("--llm-cache", default=None, metavar="DIR", help="response cache directory")
-    p.add_argument("--llm-offline-only", action="store_true", help="a cache miss is an error instead of a call")
+from mira.methods import build_method
+from mira.tasks.card import card_to_dict, load_task
+from mira.train_cli import add_llm_flags, add_train_arguments, config_from_args
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="mira", description="LLM-written reward factors, revised while the agent learns.")
+    parser = Parser(prog="mira", description="LLM-written reward factors, revised while the agent learns.")
     parser.add_argument("--version", action="version", version=f"mira {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     t = sub.add_parser("train", help="train one run (one task, method, algo, seed)")
-    t.add_argument("--task", default="halfcheetah",
-                   help=f"built-in task ({', '.join(builtin_task_names())}) or a .toml/.yaml task card")
-    t.add_argument("--method", default="dense", choices=sorted(METHODS))
-    t.add_argument("--algo", default="sac", choices=ALGOS)
-    t.add_argument("--steps", type=_positive_int, default=100_000)
-    t.add_argument("--seed", type=_nonneg_int, default=0)
-    t.add_argument("--out", default=None, help="run directory (required unless --resume)")
-    t.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR from its last checkpoint")
-    t.add_argument("--overwrite", action="store_true", help="replace an existing non-empty --out directory")
-    t.add_argument("--learning-starts", type=_nonneg_int, default=10_000)
-    t.add_argument("--buffer-size", type=_positive_int, default=1_000_000)
-    t.add_argument("--batch-size", type=_positive_int, default=256)
-    t.add_argument("--lr", type=float, default=None,
-                   help=f"learning rate of every network of the agent and of HARS (default {AgentConfig().lr:g})")
-    t.add_argument("--preset", choices=sorted(PRESETS), default=None,
-                   help="a named set of defaults applied before --lr and --set: 'paper' = Table 1 of the "
-                        "paper (lr 1e-4 for the agent and HARS)")
-    t.add_argument("--hidden", type=_hidden, default=(256, 256), help="hidden widths, e.g. 256,256")
-    t.add_argument("--eval-every", type=_positive_int, default=5_000)
-    t.add_argument("--eval-episodes", type=_positive_int, default=10)
-    t.add_argument("--checkpoint-every", type=_positive_int, default=25_000)
-    t.add_argument("--log-every", type=_positive_int, default=1_000)
-    t.add_argument("--max-episode-steps", type=_positive_int, default=None)
-    t.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
-    t.add_argument("--threads", type=_positive_int, default=None, help="PyTorch intra-op threads")
-    t.add_argument("--program", default=None, help="start from this factor-program JSON (program methods)")
-    t.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override any config field, e.g. --set mira.mcm.delta_t=1000 --set hars.joint=false")
-    t.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
-    _add_llm_flags(t)
+    add_train_arguments(t)
 
     f = sub.add_parser("factors", help="reward-factor programs: synthesise, check")
-    fsub = f.add_subparsers(dest="factors_command", required=True, parser_class=_Parser)
+    fsub = f.add_subparsers(dest="factors_command", required=True, parser_class=Parser)
     fs = fsub.add_parser("synth", help="print (or write) the initial factor program of a task (LSFS)")
     fs.add_argument("--task", required=True)
     fs.add_argument("--out", default=None, help="write the program JSON here instead of printing it")
-    _add_llm_flags(fs)
+    add_llm_flags(fs)
     fc = fsub.add_parser("check", help="static and sandbox checks; exit 0 if admissible, 1 with reasons if not")
     fc.add_argument("program", help="factor-program JSON file")
     fc.add_argument("--task", required=True)
@@ -112,25 +55,6 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("explain", help="the story of a run: versions, interventions, evidence, what changed")
     e.add_argument("run_dir")
     return parser
-
-
-def _config_from_args(args: argparse.Namespace) -> TrainConfig:
-    cfg = TrainConfig(
-        task=args.task, method=args.method, algo=args.algo, steps=args.steps, seed=args.seed,
-        learning_starts=args.learning_starts, buffer_size=args.buffer_size, eval_every=args.eval_every,
-        eval_episodes=args.eval_episodes, checkpoint_every=args.checkpoint_every, log_every=args.log_every,
-        max_episode_steps=args.max_episode_steps, device=args.device, threads=args.threads, program=args.program,
-    )
-    for assignment in PRESETS.get(args.preset or "", ()):
-        apply_override(cfg, assignment)
-    cfg.agent.batch_size, cfg.agent.hidden = args.batch_size, args.hidden
-    if args.lr is not None:
-        cfg.agent.lr = cfg.hars.lr = args.lr
-    cfg.llm.backend, cfg.llm.base_url, cfg.llm.api_key_env = args.llm, args.base_url, args.api_key_env
-    cfg.llm.cache_dir, cfg.llm.offline_only = args.llm_cache, args.llm_offline_only
-    for assignment in args.overrides:
-        apply_override(cfg, assignment)
-    return cfg
 
 
 def _environment_facts() -> dict[str, Any]:
@@ -193,7 +117,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     else:
         if args.out is None:
             raise UsageError("train: --out DIR is required (or --resume DIR)")
-        cfg = _config_from_args(args)
+        cfg = config_from_args(args)
         if cfg.learning_starts >= cfg.steps and cfg.method != "sparse":
             logging.getLogger(__name__).warning("learning_starts >= steps: the agent will never update")
         path = prepare_run_dir(args.out, resume=False, overwrite=args.overwrite)
@@ -245,8 +169,8 @@ def cmd_factors(args: argparse.Namespace) -> int:
         from mira.factors.cli_impl import check_program_file
 
         return check_program_file(args.program, args.task, sandbox=not args.no_sandbox)
-    from mira.config import LLMConfig
     from mira.factors.program import save_program
+    from mira.llm.config import LLMConfig
     from mira.lsfs import backend_from_config, synthesize_program
     from mira.tasks.envs import action_dim
 

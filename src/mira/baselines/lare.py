@@ -51,10 +51,10 @@ from mira.baselines.config import LaReConfig
 from mira.errors import UsageError
 
 if TYPE_CHECKING:
-    from mira.config import LLMConfig
     from mira.factors.evaluator import CompiledProgram
     from mira.factors.program import FactorProgram
     from mira.llm.base import LLMBackend
+    from mira.llm.config import LLMConfig
     from mira.tasks.card import TaskCard
 
 log = logging.getLogger(__name__)

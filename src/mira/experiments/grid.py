@@ -179,12 +179,12 @@ def check_train_args(train_args: Sequence[str]) -> None:
         flag = arg.split("=", 1)[0]
         if flag in GRID_FLAGS:
             raise UsageError(f"{flag} is set by the sweep grid and cannot be passed in train args")
-    from mira.cli import build_parser
+    from mira.train_cli import train_parser
 
     err = io.StringIO()
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            build_parser().parse_args(["train", "--out", "_", *train_args])
+            train_parser().parse_args(["--out", "_", *train_args])
     except SystemExit:
         lines = [ln for ln in err.getvalue().strip().splitlines() if ln.strip()]
         detail = lines[-1].split("error:", 1)[-1].strip() if lines else "not accepted by mira train"

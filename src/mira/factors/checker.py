@@ -47,6 +47,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from mira.factors.syntax import MAX_CODE_CHARS
 from mira.factors.violations import Violation
 from mira.factors.whitelist import (
     BUILTIN_FUNCTIONS,
@@ -65,7 +66,6 @@ if TYPE_CHECKING:
     from mira.tasks.card import TaskCard
 
 #: Limits that keep parsing, checking and running a factor cheap whatever its text.
-MAX_CODE_CHARS = 8000
 MAX_NODES = 2000
 MAX_DEPTH = 80
 MAX_LOOP_ITERATIONS = 256  # one loop
@@ -73,7 +73,6 @@ MAX_TOTAL_ITERATIONS = 1024  # product over nested loops
 MAX_COST = 4000  # expression nodes, each weighted by the iterations of its enclosing loops
 MAX_FACTORS = 32
 
-FACTOR_TYPES = ("PHI", "AUX")
 _PARAMS = {"PHI": ["s"], "AUX": ["s", "a"]}
 _IMPORT_NAMES = frozenset({"__import__", "importlib", "import_module"})
 _BUILTIN_NAMES = frozenset(dir(builtins))
@@ -682,16 +681,6 @@ def _is_np_linalg(node: ast.AST) -> bool:
 # --------------------------------------------------------------------------- public API
 
 
-def parse_factor_code(code: str) -> ast.Module:
-    """Parse factor code, bounding the work first.
-
-    Raises SyntaxError, ValueError (too long, NUL bytes), RecursionError or MemoryError.
-    """
-    if len(code) > MAX_CODE_CHARS:
-        raise ValueError(f"code is {len(code)} characters long; at most {MAX_CODE_CHARS} are allowed")
-    return ast.parse(code, mode="exec")
-
-
 def check_code(name: str, kind: str, code: Any, features: Iterable[str] | None = None) -> list[Violation]:
     """Every static violation of one factor's code; empty when the code is admissible.
 
@@ -744,20 +733,6 @@ def check_code(name: str, kind: str, code: Any, features: Iterable[str] | None =
         except RecursionError:
             checker.fail(target, "size", "the code is nested too deeply to check")
     return checker.violations
-
-
-def reads_action(code: str) -> bool:
-    """Whether code has an ``a`` parameter or mentions the name ``a`` (False when it does not parse)."""
-    try:
-        tree = parse_factor_code(code)
-    except (SyntaxError, ValueError, RecursionError, MemoryError):
-        return False
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Name) and node.id == "a":
-            return True
-        if isinstance(node, ast.arg) and node.arg == "a":
-            return True
-    return False
 
 
 def check_metadata(factor: Factor) -> list[Violation]:

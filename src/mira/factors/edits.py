@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from mira.errors import UsageError
-from mira.factors.checker import check_code, check_program, feature_names_of, parse_range_hint, reads_action
+from mira.factors.checker import check_code, check_program, feature_names_of, parse_range_hint
 from mira.factors.program import (
     FACTOR_FIELDS,
     Factor,
@@ -49,6 +49,7 @@ from mira.factors.program import (
     load_program,
     save_program,
 )
+from mira.factors.syntax import reads_action
 from mira.factors.violations import Violation
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 

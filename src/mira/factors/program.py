@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from mira.errors import UsageError
-from mira.factors.checker import FACTOR_TYPES, reads_action
+from mira.factors.syntax import FACTOR_TYPES, reads_action
 from mira.factors.violations import Violation
 from mira.runio.atomic import atomic_write_json
 

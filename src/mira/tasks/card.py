@@ -160,6 +160,9 @@ class TaskCard:
     constraints: tuple[str, ...] = ()
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     source_path: str | None = None
+    band_feature: str | None = None
+    """The feature whose held-out values locate a stagnation band (section 4.4.2's escape bonus), e.g.
+    the torso height of a stand-up task; None: the monitor reports no band."""
 
     def __post_init__(self) -> None:
         self._compiled: dict[str, Callable[[np.ndarray], np.ndarray]] = {}
@@ -284,6 +287,9 @@ def card_from_dict(data: dict[str, Any], where: str) -> TaskCard:
     horizon = data.get("eval_horizon", 1000)
     if type(horizon) is not int or horizon <= 0:
         raise TaskCardError(f"task card {where}: eval_horizon must be a positive integer")
+    band = data.get("band_feature")
+    if band is not None and band not in {f.name for f in features}:
+        raise TaskCardError(f"task card {where}: band_feature {band!r} is not one of its features")
     return TaskCard(
         name=name,
         env_id=env_id,
@@ -294,6 +300,7 @@ def card_from_dict(data: dict[str, Any], where: str) -> TaskCard:
         eval_horizon=horizon,
         constraints=tuple(data.get("constraints", ())),
         env_kwargs=dict(data.get("env_kwargs", {})),
+        band_feature=band,
     )
 
 
@@ -361,6 +368,7 @@ def card_to_dict(card: TaskCard) -> dict[str, Any]:
         "eval_horizon": card.eval_horizon,
         "constraints": list(card.constraints),
         "env_kwargs": card.env_kwargs,
+        "band_feature": card.band_feature,
         "action": {"doc": card.action_doc, "names": list(card.action_names)},
         "features": list(feats),
     }

@@ -6,10 +6,10 @@ from dataclasses import replace
 from pathlib import Path
 
 from mira.config import TrainConfig
-from mira.loop.outer import MiraOuterLoop, save_program_version
 from mira.lsfs import backend_from_config
-from mira.methods import MethodParts
-from mira.shaping.method import describe_shaping, initial_program
+from mira.methods.hars import describe_shaping, initial_program
+from mira.methods.parts import MethodParts
+from mira.outer.loop import MiraOuterLoop, save_program_version
 from mira.tasks.card import TaskCard
 from mira.tasks.envs import action_dim
 

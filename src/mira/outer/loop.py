@@ -36,11 +36,11 @@ from mira.factors.program import FactorProgram, code_diff
 from mira.llm.base import LLMBackend
 from mira.llm.factory import backend_state_dict, load_backend_state_dict
 from mira.loop.hooks import CycleContext
-from mira.loop.outer_config import OuterLoopConfig
 from mira.loop.rollout import discounted_return_to_go
 from mira.mcm.band import stagnation_band
 from mira.mcm.monitor import MetacognitiveMonitor
 from mira.mcm.records import METRIC_NAMES, CycleSnapshot, MCMResult, row_fields
+from mira.outer.config import OuterLoopConfig
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.runio.csvlog import CsvLog
 from mira.runio.failpoints import failpoint
@@ -79,7 +79,7 @@ class MiraOuterLoop:
         self.interventions = 0
         self.prev_actor: dict[str, torch.Tensor] | None = None
         self.pending_observation: dict[str, Any] | None = None
-        self.band_feature = config.band_feature or ("torso_height" if "torso_height" in card.feature_names else None)
+        self.band_feature = config.band_feature or card.band_feature
         self._diagnostics: CsvLog | None = None
 
     # ------------------------------------------------------------------------------------------- cycle

@@ -20,9 +20,10 @@ from mira.shaping.factors import ProgramFactorSource
 from mira.shaping.source import HarsReward
 
 if TYPE_CHECKING:
-    from mira.config import LLMConfig, TrainConfig
+    from mira.config import TrainConfig
     from mira.factors.program import FactorProgram
-    from mira.methods import MethodParts
+    from mira.llm.config import LLMConfig
+    from mira.methods.parts import MethodParts
     from mira.tasks.card import TaskCard
 
 log = logging.getLogger(__name__)
@@ -76,7 +77,7 @@ def initial_program(config: TrainConfig, card: TaskCard, run_dir: Path) -> Facto
 def build_hars(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
     """Method builder for ``--method hars`` (see :data:`mira.methods.METHODS`)."""
     from mira.factors.compiler import InadmissibleCodeError
-    from mira.methods import MethodParts
+    from mira.methods.parts import MethodParts
 
     program = initial_program(config, card, run_dir)
     try:

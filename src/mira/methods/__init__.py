@@ -7,21 +7,12 @@ of hooks. Builders import their modules lazily so that a plain ``dense`` run loa
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 from mira.config import TrainConfig
-from mira.loop.hooks import CycleHook
-from mira.rewards.base import DenseReward, RewardSource, SparseReward
+from mira.methods.parts import MethodParts
+from mira.rewards.base import DenseReward, SparseReward
 from mira.tasks.card import TaskCard
-
-
-@dataclass
-class MethodParts:
-    reward: RewardSource
-    hooks: list[CycleHook]
-    description: str
-
 
 MethodBuilder = Callable[[TrainConfig, TaskCard, Path], MethodParts]
 
@@ -35,14 +26,14 @@ def _sparse(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
 
 
 def _hars(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
-    from mira.shaping.method import build_hars
+    from mira.methods.hars import build_hars
 
     return build_hars(config, card, run_dir)
 
 
 def _baseline(method: str) -> MethodBuilder:
     def build(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
-        from mira.baselines.factory import build_baseline
+        from mira.methods.baselines import build_baseline
 
         reward, description = build_baseline(method, config, card, run_dir)
         return MethodParts(reward, [], description)
@@ -52,7 +43,7 @@ def _baseline(method: str) -> MethodBuilder:
 
 def _mira(method: str) -> MethodBuilder:
     def build(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
-        from mira.loop.mira_method import build_mira
+        from mira.methods.mira import build_mira
 
         parts: MethodParts = build_mira(config, card, run_dir, method)
         return parts

@@ -23,7 +23,7 @@ class OuterLoopConfig:
     periodic_max: int = 5
     """no-mcm: at most this many periodic interventions (match MIRA's median trigger count)."""
     band_feature: str | None = None
-    """Feature whose held-out values locate a stagnation band (default: torso_height if the card has it)."""
+    """Feature whose held-out values locate a stagnation band (default: the task card's ``band_feature``)."""
     mcm: MCMConfig = field(default_factory=MCMConfig)
     """Monitor hyperparameters (ΔT = ``mcm.delta_t`` is the cycle length)."""
     srr: SRRConfig = field(default_factory=SRRConfig)

@@ -1,0 +1,195 @@
+"""The import graph of ``src/mira``: cycles and upward arrows between the architecture's layers.
+
+Every ``import`` of a ``mira`` module counts, wherever it is written (module level, inside a function,
+under ``TYPE_CHECKING``): a lazy import hides an arrow from the reader, not from the design. Modules are
+grouped into the layers of ``docs/architecture.md``; an arrow may point to the same or a lower layer
+only. Exit status 1, with every offending arrow and cycle, when the graph breaks either rule.
+
+    python scripts/import_graph.py              # check (CI runs this through the test suite)
+    python scripts/import_graph.py --dot        # the package-level graph in Graphviz syntax
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+# Lowest first. A module belongs to the layer of the longest prefix listed here ("mira" is the package
+# itself only).
+LAYERS: list[tuple[str, tuple[str, ...]]] = [
+    ("foundation", ("mira", "mira.errors", "mira.runio", "mira.cli_types")),
+    ("core", ("mira.replay", "mira.tasks", "mira.agents", "mira.rewards", "mira.loop")),
+    ("components", ("mira.factors", "mira.llm", "mira.shaping", "mira.mcm", "mira.srr", "mira.baselines",
+                    "mira.lsfs", "mira.examples")),
+    ("methods", ("mira.outer", "mira.config", "mira.methods", "mira.explain", "mira.train_cli")),
+    ("experiments", ("mira.experiments",)),
+    ("cli", ("mira.cli", "mira.__main__")),
+]
+
+
+def layer_of(module: str) -> int:
+    best, best_len = -1, -1
+    for rank, (_, prefixes) in enumerate(LAYERS):
+        for prefix in prefixes:
+            covers = module == prefix or (prefix != "mira" and module.startswith(prefix + "."))
+            if covers and len(prefix) > best_len:
+                best, best_len = rank, len(prefix)
+    if best < 0:
+        raise SystemExit(f"import_graph: module {module} is in no layer; add it to LAYERS")
+    return best
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(SRC).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports_of(path: Path, name: str) -> set[str]:
+    """``mira`` modules imported anywhere in the file (``from pkg import mod`` counts ``pkg.mod`` if it is
+    a module, else ``pkg``)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    is_package = path.name == "__init__.py"
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names if a.name.split(".")[0] == "mira")
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = name.split(".") if is_package else name.split(".")[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.split(".")[0] != "mira":
+                continue
+            for alias in node.names:
+                sub = f"{target}.{alias.name}"
+                out.add(sub if _exists(sub) else target)
+    out.discard(name)
+    return out
+
+
+def _exists(module: str) -> bool:
+    rel = Path(*module.split("."))
+    return (SRC / rel).with_suffix(".py").is_file() or (SRC / rel / "__init__.py").is_file()
+
+
+def graph() -> dict[str, set[str]]:
+    edges: dict[str, set[str]] = {}
+    for path in sorted((SRC / "mira").rglob("*.py")):
+        name = module_name(path)
+        edges[name] = imports_of(path, name)
+    return edges
+
+
+def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+    counter = 0
+    for root in edges:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(edges.get(root, ()))))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in edges:
+                    continue
+                if child not in index:
+                    index[child] = low[child] = counter
+                    counter += 1
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(edges[child]))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    top = stack.pop()
+                    on_stack.discard(top)
+                    component.append(top)
+                    if top == node:
+                        break
+                if len(component) > 1:
+                    out.append(sorted(component))
+    return out
+
+
+def upward(edges: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """Arrows from a module to one in a higher layer; a package's ``__init__`` re-exporting its own
+    modules is not an arrow of its own."""
+    bad = []
+    for src, targets in edges.items():
+        for dst in targets:
+            if dst.startswith(src + "."):
+                continue
+            if layer_of(dst) > layer_of(src):
+                bad.append((src, dst))
+    return sorted(bad)
+
+
+def package(module: str) -> str:
+    parts = module.split(".")
+    return ".".join(parts[:2])
+
+
+def dot(edges: dict[str, set[str]]) -> str:
+    pkg_edges: dict[str, set[str]] = defaultdict(set)
+    for src, targets in edges.items():
+        for dst in targets:
+            a, b = package(src), package(dst)
+            if a != b and b != "mira":
+                pkg_edges[a].add(b)
+    lines = ["digraph mira {", "  rankdir=BT;"]
+    for rank, (layer, prefixes) in enumerate(LAYERS):
+        members = sorted({package(p) for p in prefixes if p != "mira"})
+        lines.append(f"  subgraph cluster_{rank} {{ label=\"{layer}\"; " + " ".join(f'"{m}";' for m in members) + " }")
+    for a in sorted(pkg_edges):
+        for b in sorted(pkg_edges[a]):
+            lines.append(f'  "{a}" -> "{b}";')
+    lines.append("}")
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dot", action="store_true", help="print the package graph in Graphviz syntax")
+    args = parser.parse_args()
+    edges = graph()
+    if args.dot:
+        print(dot(edges))
+        return 0
+    found_cycles, found_upward = cycles(edges), upward(edges)
+    for component in found_cycles:
+        print("cycle: " + " <-> ".join(component))
+    for src, dst in found_upward:
+        print(f"upward: {src} ({LAYERS[layer_of(src)][0]}) -> {dst} ({LAYERS[layer_of(dst)][0]})")
+    if found_cycles or found_upward:
+        return 1
+    print(f"import graph: {len(edges)} modules, no cycles, no upward arrows")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
