@@ -19,10 +19,10 @@ from mira.baselines.lare import (
     lare_program,
 )
 from mira.config import TrainConfig, from_dict, to_dict
+from mira.engineer.offline_lsfs import synthesize
 from mira.errors import UsageError
 from mira.llm.base import LLMReply, LLMRequest
 from mira.llm.config import LLMConfig
-from mira.llm.offline_lsfs import synthesize
 from mira.tasks.card import load_task
 
 NO_SANDBOX = LaReConfig(sandbox=False)

@@ -24,9 +24,10 @@ import numpy as np
 import pytest
 import torch
 
+from mira.engineer.backends import make_backend
+from mira.engineer.srr_prompt import Evidence
 from mira.factors import example_program
 from mira.factors.sandbox import collect_states
-from mira.llm.factory import make_backend
 from mira.mcm import MCMConfig, MetacognitiveMonitor
 from mira.mcm.band import stagnation_band
 from mira.mcm.metrics import d_pvc, d_rpe
@@ -35,7 +36,6 @@ from mira.shaping.factors import ProgramFactorSource
 from mira.shaping.source import HarsReward
 from mira.shaping.testing import make_hars
 from mira.srr.config import SRRConfig
-from mira.srr.prompt import Evidence
 from mira.srr.reframe import Reframer
 from mira.tasks import load_task, make_env
 

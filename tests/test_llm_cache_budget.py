@@ -9,23 +9,21 @@ from pathlib import Path
 import pytest
 
 from chat_server import ChatServer, reply, status
-from mira.llm import (
+from mira.engineer.backends import make_backend
+from mira.engineer.offline import OfflineEngineer
+from mira.llm.audit import AuditedBackend, AuditLog
+from mira.llm.base import (
     OFFLINE_ENGINEER_LABEL,
-    AuditedBackend,
-    AuditLog,
-    BudgetedBackend,
-    CachedBackend,
     LLMBudgetExceededError,
     LLMCacheMissError,
     LLMReply,
     LLMRequest,
     LLMRequestRejectedError,
-    OfflineEngineer,
-    ScriptBackend,
     TokenUsage,
-    cache_key,
-    make_backend,
 )
+from mira.llm.budget import BudgetedBackend
+from mira.llm.cache import CachedBackend, cache_key
+from mira.llm.script import ScriptBackend
 
 
 @pytest.fixture

@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from mira.llm import OFFLINE_ENGINEER_LABEL, LLMRequest, LLMRequestRejectedError, OfflineEngineer
+from mira.engineer.offline import OfflineEngineer
+from mira.llm.base import OFFLINE_ENGINEER_LABEL, LLMRequest, LLMRequestRejectedError
 from mira.tasks.card import load_task
 
 ALLOWED_NP = {

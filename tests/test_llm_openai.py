@@ -11,14 +11,8 @@ import pytest
 
 from chat_server import ChatServer, hang, raw, reply, status
 from mira.errors import UsageError
-from mira.llm import (
-    LLMBadReplyError,
-    LLMRequest,
-    LLMRequestRejectedError,
-    LLMUnavailableError,
-    OpenAIBackend,
-)
-from mira.llm.openai_backend import DUMMY_LOCAL_KEY, parse_retry_after
+from mira.llm.base import LLMBadReplyError, LLMRequest, LLMRequestRejectedError, LLMUnavailableError
+from mira.llm.openai_backend import DUMMY_LOCAL_KEY, OpenAIBackend, parse_retry_after
 
 
 @pytest.fixture

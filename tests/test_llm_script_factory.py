@@ -7,22 +7,15 @@ from pathlib import Path
 
 import pytest
 
+from mira.engineer.backends import backend_state_dict, find_layer, load_backend_state_dict, make_backend
+from mira.engineer.offline import OfflineEngineer
 from mira.errors import UsageError
-from mira.llm import (
-    AuditedBackend,
-    BudgetedBackend,
-    CachedBackend,
-    LLMRequest,
-    OfflineEngineer,
-    OpenAIBackend,
-    ScriptBackend,
-    ScriptExhaustedError,
-    ScriptFormatError,
-    backend_state_dict,
-    find_layer,
-    load_backend_state_dict,
-    make_backend,
-)
+from mira.llm.audit import AuditedBackend
+from mira.llm.base import LLMRequest, ScriptExhaustedError, ScriptFormatError
+from mira.llm.budget import BudgetedBackend
+from mira.llm.cache import CachedBackend
+from mira.llm.openai_backend import OpenAIBackend
+from mira.llm.script import ScriptBackend
 
 
 def _request(text: str = "q") -> LLMRequest:

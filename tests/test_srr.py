@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mira.engineer.backends import make_backend
+from mira.engineer.srr_prompt import Evidence
 from mira.factors import example_program
 from mira.factors.sandbox import collect_states
-from mira.llm.factory import make_backend
 from mira.srr.config import SRRConfig
 from mira.srr.efficacy import proxy_efficacy, roc_auc
 from mira.srr.hypotheses import EditSurrogate, rule_hypotheses
-from mira.srr.prompt import Evidence
 from mira.srr.reframe import Reframer
 from mira.tasks import load_task
 

@@ -169,9 +169,9 @@ def cmd_factors(args: argparse.Namespace) -> int:
         from mira.factors.cli_impl import check_program_file
 
         return check_program_file(args.program, args.task, sandbox=not args.no_sandbox)
+    from mira.engineer.lsfs import backend_from_config, synthesize_program
     from mira.factors.program import save_program
     from mira.llm.config import LLMConfig
-    from mira.lsfs import backend_from_config, synthesize_program
     from mira.tasks.envs import action_dim
 
     card = load_task(args.task)

@@ -12,12 +12,12 @@ Ours:
 
 * **The latent function is a MIRA factor program** (DESIGN.md's JSON contract: PHI factors of s, AUX
   factors of (s, a)), obtained once through the same reward-engineer backends, cache, budget and
-  audit log as LSFS (:func:`mira.llm.factory.make_backend`, request purpose ``"lare"``), with the
-  LSFS prompt (:func:`mira.factors.lsfs.build_lsfs_messages`) plus a LaRe section
+  audit log as LSFS (:func:`mira.engineer.backends.make_backend`, request purpose ``"lare"``), with the
+  LSFS prompt (:func:`mira.engineer.lsfs_prompt.build_lsfs_messages`) plus a LaRe section
   (``prompts/lare_note.txt``) saying the factors feed a return-decomposition decoder. The ``offline``
   engineer answers with its LSFS program (it cannot read prose). The program is **never revised**.
 * **Self-verification = MIRA's factor checks**: the reply is parsed strictly
-  (:func:`mira.factors.lsfs.parse_program_reply`), statically checked, and (``sandbox=True``) run in
+  (:func:`mira.engineer.lsfs_prompt.parse_program_reply`), statically checked, and (``sandbox=True``) run in
   the sandbox on real states. A rejected reply is shown back to the LLM with the reasons, up to
   ``max_attempts`` requests; LaRe instead samples several candidates and keeps a passing one — one
   conversation with feedback costs fewer calls and is deterministic at temperature 0.
@@ -165,7 +165,7 @@ def _prompt(name: str) -> Template:
 
 def lare_messages(card: TaskCard, action_dim: int) -> list[dict[str, str]]:
     """The LSFS prompt (same factor language and output format) plus LaRe's latent-reward section."""
-    from mira.factors.lsfs import build_lsfs_messages
+    from mira.engineer.lsfs_prompt import build_lsfs_messages
 
     messages = [dict(m) for m in build_lsfs_messages(card, action_dim)]
     note = _prompt("lare_note.txt").substitute().strip()
@@ -207,11 +207,11 @@ def synthesize_lare_program(
     Raises :class:`UsageError` naming the last reasons when no admissible program came back within
     ``config.max_attempts`` requests.
     """
-    from mira.factors.lsfs import parse_program_reply
+    from mira.engineer.backends import find_layer
+    from mira.engineer.lsfs_prompt import parse_program_reply
     from mira.factors.program import ProgramParseError
     from mira.llm.audit import AuditedBackend
     from mira.llm.base import LLMRequest
-    from mira.llm.factory import find_layer
 
     if config.max_attempts <= 0:
         raise UsageError("lare: max_attempts must be positive")
@@ -246,7 +246,7 @@ def synthesize_lare_program(
 
 
 def make_lare_backend(llm: LLMConfig, run_dir: Path) -> LLMBackend:
-    from mira.lsfs import backend_from_config
+    from mira.engineer.lsfs import backend_from_config
 
     return backend_from_config(llm, Path(run_dir) / "llm" / "cache", Path(run_dir))
 

@@ -12,6 +12,7 @@ action (AUX, policy-side only), written by an LLM and treated as untrusted code:
 * :mod:`.examples`  the paper's section 5.3 programs for HalfCheetah and HumanoidStandup.
 """
 
+from mira.engineer.lsfs_prompt import build_lsfs_messages, parse_program_reply
 from mira.factors.checker import StaticReport, check_code, check_factor, check_program, parse_range_hint
 from mira.factors.compiler import InadmissibleCodeError, compile_factor
 from mira.factors.edits import (
@@ -29,7 +30,6 @@ from mira.factors.edits import (
 )
 from mira.factors.evaluator import CompiledProgram, FactorHealth, FactorRuntimeError
 from mira.factors.examples import example_program, example_programs
-from mira.factors.lsfs import build_lsfs_messages, parse_program_reply
 from mira.factors.program import (
     Factor,
     FactorProgram,

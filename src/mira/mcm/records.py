@@ -246,19 +246,3 @@ def row_fields(metric_names: tuple[str, ...] = METRIC_NAMES) -> list[str]:
         "contributors",
     ]
     return cols
-
-
-STAGNATION_TOLERANCE = 0.02
-"""A return within this fraction of |baseline| above the moving baseline counts as not improving."""
-
-
-def return_is_poor(recent: float | None, baseline: float | None) -> bool:
-    """The return is not improving on its moving baseline: below it, or on a plateau just above it.
-
-    Section 4.4.2's rules ask for "poor return" before adding incentives; a stagnating run sits a
-    hair above its own slowly moving baseline as often as below it, so a strict ``recent <= baseline``
-    would miss exactly the plateaus the rule is for. Unknown values count as poor (the monitor fired).
-    """
-    if recent is None or baseline is None or not (math.isfinite(recent) and math.isfinite(baseline)):
-        return True
-    return recent <= baseline + STAGNATION_TOLERANCE * abs(baseline)

@@ -3,7 +3,7 @@
 The initial program comes from, in order: ``RUN_DIR/programs/v000.json`` when it exists (a resumed or
 re-run run never asks the engineer again), ``config.program`` (a JSON file), or LSFS through the
 configured reward engineer (``--llm``: the offline rule-based engineer by default, a script, or an
-OpenAI-compatible LLM), with the response cache, budget and audit log of :mod:`mira.llm.factory`.
+OpenAI-compatible LLM), with the response cache, budget and audit log of :mod:`mira.engineer.backends`.
 Whatever its origin, the program must pass the static checker (compilation refuses anything else)
 and is saved atomically as ``RUN_DIR/programs/v000.json`` before training starts.
 """
@@ -37,7 +37,7 @@ def program_path(run_dir: Path, version: int) -> Path:
 
 def lsfs_program(card: TaskCard, llm: LLMConfig, run_dir: Path) -> FactorProgram:
     """Ask the configured reward engineer for the initial program (section 4.2.1)."""
-    from mira.lsfs import SynthesisError, backend_from_config, synthesize_program
+    from mira.engineer.lsfs import SynthesisError, backend_from_config, synthesize_program
     from mira.tasks.envs import action_dim
 
     backend = backend_from_config(llm, Path(run_dir) / "llm" / "cache", Path(run_dir))

@@ -6,7 +6,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from mira.config import TrainConfig
-from mira.lsfs import backend_from_config
+from mira.engineer.lsfs import backend_from_config
 from mira.methods.hars import describe_shaping, initial_program
 from mira.methods.parts import MethodParts
 from mira.outer.loop import MiraOuterLoop, save_program_version

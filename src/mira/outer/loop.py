@@ -32,9 +32,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from mira.engineer.backends import backend_state_dict, load_backend_state_dict
+from mira.engineer.srr_prompt import Evidence
 from mira.factors.program import FactorProgram, code_diff
 from mira.llm.base import LLMBackend
-from mira.llm.factory import backend_state_dict, load_backend_state_dict
 from mira.loop.hooks import CycleContext
 from mira.loop.rollout import discounted_return_to_go
 from mira.mcm.band import stagnation_band
@@ -47,7 +48,6 @@ from mira.runio.failpoints import failpoint
 from mira.shaping.factors import ProgramFactorSource
 from mira.shaping.source import HarsReward
 from mira.srr.hypotheses import EditSurrogate
-from mira.srr.prompt import Evidence
 from mira.srr.reframe import Reframer, SRRDecision
 from mira.tasks.card import TaskCard
 

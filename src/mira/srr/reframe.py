@@ -19,18 +19,17 @@ from typing import Any
 
 import numpy as np
 
+from mira.engineer.srr_candidates import Candidate, parse_candidates
+from mira.engineer.srr_prompt import Evidence, build_srr_request
 from mira.factors.checker import check_program
 from mira.factors.program import FactorProgram, ProgramParseError, code_diff
 from mira.factors.sandbox import SandboxLimits, sandbox_check
 from mira.llm.base import LLMBackend, LLMError
-from mira.mcm.records import return_is_poor
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.runio.failpoints import failpoint
-from mira.srr.candidates import Candidate, parse_candidates
 from mira.srr.config import SRRConfig
 from mira.srr.efficacy import proxy_efficacy
 from mira.srr.hypotheses import METRICS, EditSurrogate, complexity, rule_hypotheses
-from mira.srr.prompt import Evidence, build_srr_request
 from mira.tasks.card import TaskCard
 
 log = logging.getLogger(__name__)
@@ -86,7 +85,7 @@ class Reframer:
     ) -> SRRDecision:
         cfg = self.config
         folder.mkdir(parents=True, exist_ok=True)
-        poor = return_is_poor(evidence.recent_return, evidence.baseline_return)
+        poor = evidence.poor_return
         hypotheses = rule_hypotheses(evidence.d, poor) if evidence.guided else []
         atomic_write_json(folder / "evidence.json", {**evidence.as_dict(),
                                                      "hypotheses": [h.as_dict() for h in hypotheses]})

@@ -12,13 +12,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
+from mira.engineer.backends import make_backend
+from mira.engineer.lsfs_prompt import build_lsfs_messages, parse_program_reply
 from mira.errors import MiraError
 from mira.factors.checker import check_program
-from mira.factors.lsfs import build_lsfs_messages, parse_program_reply
 from mira.factors.program import FactorProgram, ProgramParseError
 from mira.llm.base import LLMBackend, LLMRequest
 from mira.llm.config import LLMConfig
-from mira.llm.factory import make_backend
 from mira.tasks.card import TaskCard
 
 Purpose = Literal["lsfs", "srr", "lare"]

@@ -15,12 +15,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, TypeVar
 
+from mira.engineer.offline import OfflineEngineer
 from mira.errors import UsageError
 from mira.llm.audit import AuditedBackend, AuditLog
 from mira.llm.base import LLMBackend
 from mira.llm.budget import BudgetedBackend
 from mira.llm.cache import CachedBackend
-from mira.llm.offline import OfflineEngineer
 from mira.llm.script import ScriptBackend
 
 SPEC_HELP = "expected offline, script:FILE or openai:MODEL"

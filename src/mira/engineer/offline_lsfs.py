@@ -23,8 +23,8 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+from mira.engineer.factorcode import format_range, make_factor, num
 from mira.llm.base import OFFLINE_ENGINEER_LABEL, LLMRequestRejectedError
-from mira.llm.factorcode import format_range, make_factor, num
 
 C_UPRIGHT = 1.0
 C_STABLE = 0.05

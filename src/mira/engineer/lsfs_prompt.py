@@ -40,7 +40,7 @@ _EXAMPLE_FACTOR = (
 
 
 def _template(name: str) -> Template:
-    return Template(resources.files("mira.factors").joinpath("prompts", name).read_text(encoding="utf-8"))
+    return Template(resources.files("mira.engineer").joinpath("prompts", name).read_text(encoding="utf-8"))
 
 
 def build_lsfs_messages(

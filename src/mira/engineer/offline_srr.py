@@ -27,8 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from mira.llm.base import OFFLINE_ENGINEER_LABEL, LLMRequestRejectedError
-from mira.llm.factorcode import (
+from mira.engineer.factorcode import (
     features_used,
     first_return_expr,
     format_range,
@@ -39,7 +38,8 @@ from mira.llm.factorcode import (
     rewrite_returns,
     squared_features,
 )
-from mira.mcm.records import return_is_poor
+from mira.engineer.srr_prompt import return_is_poor
+from mira.llm.base import OFFLINE_ENGINEER_LABEL, LLMRequestRejectedError
 
 OPERATORS: tuple[str, ...] = ("Scale", "Sat", "Gate", "Refactor", "Add", "Prune")
 METRICS: tuple[str, ...] = ("PEG", "TPD", "PVC", "FAP", "RPE")
@@ -61,8 +61,8 @@ SCALE_BACKOFF = 0.5
 
 
 @dataclass
-class Candidate:
-    """One ranked, single-edit revision."""
+class RankedEdit:
+    """One ranked, single-edit revision the offline engineer proposes (serialised as a reply candidate)."""
 
     edit: dict[str, Any]
     factors: list[dict[str, Any]]
@@ -74,8 +74,11 @@ class Candidate:
 
 
 @dataclass
-class Evidence:
-    """The SRR context, checked and normalised."""
+class RequestContext:
+    """An SRR request's ``context`` as the offline engineer reads it, checked and normalised.
+
+    Not :class:`mira.engineer.srr_prompt.Evidence`: the engineer sees only what the request carries
+    (what an LLM is sent, as JSON), never MIRA's objects, so it is held to the same information."""
 
     factors: list[dict[str, Any]]
     z: dict[str, float]
@@ -114,7 +117,7 @@ def _opt_float(value: Any) -> float | None:
     return None
 
 
-def parse_evidence(context: dict[str, Any]) -> Evidence:
+def parse_evidence(context: dict[str, Any]) -> RequestContext:
     program = context.get("program")
     if isinstance(program, str):
         try:
@@ -167,7 +170,7 @@ def parse_evidence(context: dict[str, Any]) -> Evidence:
         if isinstance(v, int | float) and math.isfinite(v)
     }
     guided = bool(context.get("guided", True))
-    return Evidence(
+    return RequestContext(
         factors=factors,
         z=_floats(context.get("diagnostics")) if guided else {},
         raw=_floats(context.get("raw_diagnostics")) if guided else {},
@@ -188,7 +191,7 @@ def parse_evidence(context: dict[str, Any]) -> Evidence:
 # --------------------------------------------------------------------------- factor selection
 
 
-def _phi(ev: Evidence) -> list[dict[str, Any]]:
+def _phi(ev: RequestContext) -> list[dict[str, Any]]:
     return [f for f in ev.factors if f["type"] == "PHI"]
 
 
@@ -206,7 +209,7 @@ def _is_rate(name: str) -> bool:
     return name.endswith(("_rate", "_dot")) or "vel" in name or "omega" in name
 
 
-def progress_factor(ev: Evidence) -> dict[str, Any] | None:
+def progress_factor(ev: RequestContext) -> dict[str, Any] | None:
     """The Φ-factor that pays for progress: by name, else by reading a velocity linearly."""
     best: tuple[float, int, dict[str, Any]] | None = None
     for i, f in enumerate(_phi(ev)):
@@ -228,7 +231,7 @@ def progress_factor(ev: Evidence) -> dict[str, Any] | None:
     return None if best is None else best[2]
 
 
-def dominant_factor(ev: Evidence) -> dict[str, Any] | None:
+def dominant_factor(ev: RequestContext) -> dict[str, Any] | None:
     """The Φ-factor the potential leans on: most attention, else progress, else widest range."""
     phi = _phi(ev)
     if not phi:
@@ -238,7 +241,7 @@ def dominant_factor(ev: Evidence) -> dict[str, Any] | None:
     return progress_factor(ev) or max(phi, key=_width)
 
 
-def fastest_factor(ev: Evidence) -> dict[str, Any] | None:
+def fastest_factor(ev: RequestContext) -> dict[str, Any] | None:
     """The Φ-factor that varies fastest: most (squared) rates read, ties to the widest range."""
     phi = _phi(ev)
     if not phi:
@@ -252,12 +255,12 @@ def fastest_factor(ev: Evidence) -> dict[str, Any] | None:
     return max(phi, key=key)
 
 
-def widest_factors(ev: Evidence) -> list[dict[str, Any]]:
+def widest_factors(ev: RequestContext) -> list[dict[str, Any]]:
     """Φ-factors by decreasing range-hint width (stable for ties)."""
     return sorted(_phi(ev), key=lambda f: -_width(f))
 
 
-def posture_feature(ev: Evidence) -> str | None:
+def posture_feature(ev: RequestContext) -> str | None:
     if ev.posture is not None:
         return ev.posture
     for name in ("pitch", "uprightness"):
@@ -273,7 +276,7 @@ def _posture_gate(feature: str) -> tuple[str, float]:
     return f"1.0 - np.tanh({num(GATE_ALPHA_ANGLE)} * np.square(s.{feature}))", GATE_ALPHA_ANGLE
 
 
-def _with(ev: Evidence, name: str, change: Callable[[dict[str, Any]], dict[str, Any] | None]) -> list[dict]:
+def _with(ev: RequestContext, name: str, change: Callable[[dict[str, Any]], dict[str, Any] | None]) -> list[dict]:
     """The factor set with ``name`` replaced by ``change(factor)`` (dropped when it returns None)."""
     out: list[dict[str, Any]] = []
     for f in ev.factors:
@@ -286,7 +289,7 @@ def _with(ev: Evidence, name: str, change: Callable[[dict[str, Any]], dict[str, 
     return out
 
 
-def _fresh_name(ev: Evidence, base: str) -> str:
+def _fresh_name(ev: RequestContext, base: str) -> str:
     taken = {f["name"] for f in ev.factors}
     if base not in taken:
         return base
@@ -303,7 +306,7 @@ def _edit(op: str, targets: list[str], params: dict[str, Any], why: str) -> dict
 # --------------------------------------------------------------------------- operators
 
 
-def gate_on_posture(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dict, list[dict]] | None:
+def gate_on_posture(ev: RequestContext, target: dict[str, Any], why: str) -> tuple[dict, list[dict]] | None:
     feature = posture_feature(ev)
     if feature is None or feature in features_used(target["code"]):
         return None
@@ -318,7 +321,7 @@ def gate_on_posture(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dic
     return _edit("Gate", [target["name"]], params, why), _with(ev, target["name"], change)
 
 
-def refactor_heading(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dict, list[dict]] | None:
+def refactor_heading(ev: RequestContext, target: dict[str, Any], why: str) -> tuple[dict, list[dict]] | None:
     feature = posture_feature(ev)
     if feature is None or feature in features_used(target["code"]):
         return None
@@ -335,7 +338,7 @@ def refactor_heading(ev: Evidence, target: dict[str, Any], why: str) -> tuple[di
     return _edit("Refactor", [target["name"]], params, why), factors
 
 
-def saturate(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dict, list[dict]]:
+def saturate(ev: RequestContext, target: dict[str, Any], why: str) -> tuple[dict, list[dict]]:
     rng = parse_range(target.get("range_hint"))
     if rng is None:
         lo, hi = -5.0, 5.0
@@ -355,7 +358,7 @@ def saturate(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dict, list
     return _edit("Sat", [target["name"]], params, why), _with(ev, target["name"], change)
 
 
-def scale(ev: Evidence, target: dict[str, Any], alpha: float, why: str) -> tuple[dict, list[dict]]:
+def scale(ev: RequestContext, target: dict[str, Any], alpha: float, why: str) -> tuple[dict, list[dict]]:
     def change(f: dict[str, Any]) -> dict[str, Any]:
         f["code"] = rewrite_returns(f["code"], lambda x: f"{num(alpha)} * ({x})")
         rng = parse_range(f.get("range_hint"))
@@ -366,13 +369,13 @@ def scale(ev: Evidence, target: dict[str, Any], alpha: float, why: str) -> tuple
     return _edit("Scale", [target["name"]], {"alpha": alpha}, why), _with(ev, target["name"], change)
 
 
-def prune(ev: Evidence, target: dict[str, Any], why: str) -> tuple[dict, list[dict]] | None:
+def prune(ev: RequestContext, target: dict[str, Any], why: str) -> tuple[dict, list[dict]] | None:
     if target["type"] == "PHI" and len(_phi(ev)) < 2:
         return None
     return _edit("Prune", [target["name"]], {}, why), _with(ev, target["name"], lambda f: None)
 
 
-def _phi_scale(ev: Evidence) -> float:
+def _phi_scale(ev: RequestContext) -> float:
     """Typical magnitude of the Φ-factors (median of range-hint bounds), for commensurate additions."""
     mags = sorted(m for m in (_magnitude(f) for f in _phi(ev)) if m is not None and m > 0)
     if not mags:
@@ -381,14 +384,14 @@ def _phi_scale(ev: Evidence) -> float:
     return float(f"{min(max(mid, 0.1), 10.0):.2g}")
 
 
-def _vertical_velocity(ev: Evidence) -> str | None:
+def _vertical_velocity(ev: RequestContext) -> str | None:
     for name in ("z_velocity", "vz", "v_z", "z_vel", "vertical_velocity"):
         if name in ev.feature_names:
             return name
     return None
 
 
-def add_escape_bonus(ev: Evidence, why: str) -> tuple[dict, list[dict]] | None:
+def add_escape_bonus(ev: RequestContext, why: str) -> tuple[dict, list[dict]] | None:
     """Section 5.3.2: σ(α (z − z_stag)) · tanh(β v_z), localised at the stagnation band."""
     if ev.band is None:
         return add_bridge(ev, why)
@@ -433,7 +436,7 @@ def add_escape_bonus(ev: Evidence, why: str) -> tuple[dict, list[dict]] | None:
     return _edit("Add", [name], params, why), [*copy.deepcopy(ev.factors), new]
 
 
-def add_bridge(ev: Evidence, why: str) -> tuple[dict, list[dict]] | None:
+def add_bridge(ev: RequestContext, why: str) -> tuple[dict, list[dict]] | None:
     """Without a localised band: a bounded, state-only bridge on rising (or forward) motion."""
     size = _phi_scale(ev)
     vz = _vertical_velocity(ev)
@@ -462,7 +465,7 @@ def add_bridge(ev: Evidence, why: str) -> tuple[dict, list[dict]] | None:
 # --------------------------------------------------------------------------- rules
 
 
-def _fmt(ev: Evidence, metric: str) -> str:
+def _fmt(ev: RequestContext, metric: str) -> str:
     parts = []
     if metric in ev.z:
         parts.append(f"standardised {ev.z[metric]:+.2f}")
@@ -473,7 +476,7 @@ def _fmt(ev: Evidence, metric: str) -> str:
     return f"d_{metric} " + (", ".join(parts) if parts else "(no value given)")
 
 
-def _strengths(ev: Evidence) -> dict[str, float]:
+def _strengths(ev: RequestContext) -> dict[str, float]:
     """How strongly each rule's trigger holds (0 = not at all)."""
     z, raw, g = ev.z, ev.raw, ev.grad
     out: dict[str, float] = {}
@@ -505,7 +508,7 @@ def _strengths(ev: Evidence) -> dict[str, float]:
     return out
 
 
-def _rule_candidates(ev: Evidence, metric: str) -> list[tuple[dict, list[dict]] | None]:
+def _rule_candidates(ev: RequestContext, metric: str) -> list[tuple[dict, list[dict]] | None]:
     """Primary then alternative proposals for one rule."""
     if metric == "PVC":
         target = progress_factor(ev) or dominant_factor(ev)
@@ -574,7 +577,7 @@ def _rule_candidates(ev: Evidence, metric: str) -> list[tuple[dict, list[dict]] 
     return []
 
 
-def _generic(ev: Evidence) -> list[tuple[dict, list[dict]] | None]:
+def _generic(ev: RequestContext) -> list[tuple[dict, list[dict]] | None]:
     """Unguided edits (no diagnostics): tame the largest-range Φ-factors."""
     widest = widest_factors(ev)
     out: list[tuple[dict, list[dict]] | None] = []
@@ -598,7 +601,7 @@ def _generic(ev: Evidence) -> list[tuple[dict, list[dict]] | None]:
 def propose(context: dict[str, Any]) -> dict[str, Any]:
     """The Appendix A reply: ranked candidates, each one edit plus the complete revised factor set."""
     ev = parse_evidence(context)
-    ranked: list[Candidate] = []
+    ranked: list[RankedEdit] = []
     order = 0
     if ev.guided:
         strengths = _strengths(ev)
@@ -607,16 +610,16 @@ def propose(context: dict[str, Any]) -> dict[str, Any]:
                 if proposal is not None and proposal[0]["operator"] in ev.allowed:
                     # Primaries of every fired rule come before any rule's alternative.
                     ranked.append(
-                        Candidate(proposal[0], proposal[1], strengths[metric] - 100.0 * rank, order)
+                        RankedEdit(proposal[0], proposal[1], strengths[metric] - 100.0 * rank, order)
                     )
                     order += 1
     if not ranked:
         for proposal in _generic(ev):
             if proposal is not None and proposal[0]["operator"] in ev.allowed:
-                ranked.append(Candidate(proposal[0], proposal[1], -float(order), order))
+                ranked.append(RankedEdit(proposal[0], proposal[1], -float(order), order))
                 order += 1
     ranked.sort(key=lambda c: (-c.strength, c.order))
-    chosen: list[Candidate] = []
+    chosen: list[RankedEdit] = []
     seen: set[str] = set()
     for cand in ranked:
         signature = json.dumps(cand.factors, sort_keys=True)

@@ -9,6 +9,7 @@ messages) can never confuse two different requests.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from importlib import resources
 from string import Template
@@ -27,6 +28,22 @@ OPERATOR_DOCS = {
     "Add": "Add(new_factor, code, type): introduce a new physically meaningful signal (PHI or AUX).",
     "Prune": "Prune(factor): remove an ineffective, redundant or detrimental factor.",
 }
+
+
+STAGNATION_TOLERANCE = 0.02
+"""A return within this fraction of |baseline| above the moving baseline counts as not improving."""
+
+
+def return_is_poor(recent: float | None, baseline: float | None) -> bool:
+    """The return is not improving on its moving baseline: below it, or on a plateau just above it.
+
+    Section 4.4.2's rules ask for "poor return" before adding incentives; a stagnating run sits a
+    hair above its own slowly moving baseline as often as below it, so a strict ``recent <= baseline``
+    would miss exactly the plateaus the rule is for. Unknown values count as poor (the monitor fired).
+    """
+    if recent is None or baseline is None or not (math.isfinite(recent) and math.isfinite(baseline)):
+        return True
+    return recent <= baseline + STAGNATION_TOLERANCE * abs(baseline)
 
 
 @dataclass
@@ -52,12 +69,17 @@ class Evidence:
     """HARS's return decomposition (section 3's parametric alignment): per-feature weights and shares
     of r̂, the fit's R² and per-step residual (:meth:`DecompositionHead.describe`); None when absent."""
 
+    @property
+    def poor_return(self) -> bool:
+        """The return is not improving on its baseline (see :func:`return_is_poor`)."""
+        return return_is_poor(self.recent_return, self.baseline_return)
+
     def as_dict(self) -> dict[str, Any]:
         return dict(vars(self))
 
 
 def _template(name: str) -> Template:
-    return Template(resources.files("mira.srr.prompts").joinpath(name).read_text(encoding="utf-8"))
+    return Template(resources.files("mira.engineer").joinpath("prompts", name).read_text(encoding="utf-8"))
 
 
 def _factor_block(program: FactorProgram) -> str:

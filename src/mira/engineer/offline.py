@@ -19,9 +19,9 @@ import json
 import time
 from typing import Any
 
+from mira.engineer.offline_lsfs import synthesize
+from mira.engineer.offline_srr import propose
 from mira.llm.base import LLMReply, LLMRequest, LLMRequestRejectedError
-from mira.llm.offline_lsfs import synthesize
-from mira.llm.offline_srr import propose
 
 OFFLINE_MODEL = "rule-based-engineer-v1"
 
