@@ -7,6 +7,7 @@ only. Exit status 1, with every offending arrow and cycle, when the graph breaks
 
     python scripts/import_graph.py              # check (CI runs this through the test suite)
     python scripts/import_graph.py --dot        # the package-level graph in Graphviz syntax
+    python scripts/import_graph.py --mermaid    # the same as a Mermaid block (docs/architecture.md)
 """
 
 from __future__ import annotations
@@ -154,13 +155,37 @@ def package(module: str) -> str:
     return ".".join(parts[:2])
 
 
-def dot(edges: dict[str, set[str]]) -> str:
+def package_edges(edges: dict[str, set[str]]) -> dict[str, set[str]]:
     pkg_edges: dict[str, set[str]] = defaultdict(set)
     for src, targets in edges.items():
         for dst in targets:
             a, b = package(src), package(dst)
-            if a != b and b != "mira":
+            if a != b and b != "mira" and a != "mira":
                 pkg_edges[a].add(b)
+    return pkg_edges
+
+
+def mermaid(edges: dict[str, set[str]]) -> str:
+    """The package graph as a Mermaid flowchart, layers as subgraphs (highest first); arrows into the
+    foundation layer (errors, run-directory I/O), which every package uses, are left out."""
+    pkg_edges = package_edges(edges)
+    foundation = {package(p) for p in LAYERS[0][1]}
+    lines = ["```mermaid", "flowchart TB"]
+    for rank in range(len(LAYERS) - 1, -1, -1):
+        layer, prefixes = LAYERS[rank]
+        members = sorted({package(p) for p in prefixes if p != "mira"})
+        lines.append(f"  subgraph {layer}")
+        lines += [f"    {m.replace('.', '_')}[{m.removeprefix('mira.')}]" for m in members]
+        lines.append("  end")
+    for a in sorted(pkg_edges):
+        for b in sorted(pkg_edges[a] - foundation):
+            lines.append(f"  {a.replace('.', '_')} --> {b.replace('.', '_')}")
+    lines.append("```")
+    return "\n".join(lines)
+
+
+def dot(edges: dict[str, set[str]]) -> str:
+    pkg_edges = package_edges(edges)
     lines = ["digraph mira {", "  rankdir=BT;"]
     for rank, (layer, prefixes) in enumerate(LAYERS):
         members = sorted({package(p) for p in prefixes if p != "mira"})
@@ -175,10 +200,11 @@ def dot(edges: dict[str, set[str]]) -> str:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dot", action="store_true", help="print the package graph in Graphviz syntax")
+    parser.add_argument("--mermaid", action="store_true", help="print the package graph as a Mermaid block")
     args = parser.parse_args()
     edges = graph()
-    if args.dot:
-        print(dot(edges))
+    if args.dot or args.mermaid:
+        print(dot(edges) if args.dot else mermaid(edges))
         return 0
     found_cycles, found_upward = cycles(edges), upward(edges)
     for component in found_cycles:

@@ -24,3 +24,10 @@ def test_the_checker_finds_a_cycle_and_an_upward_arrow(tmp_path: Path) -> None:
     edges = {"mira.replay": {"mira.cli"}, "mira.cli": {"mira.replay"}, "mira.errors": set()}
     assert ig.cycles(edges) == [["mira.cli", "mira.replay"]]
     assert ig.upward(edges) == [("mira.replay", "mira.cli")]
+
+
+def test_docs_show_the_current_graph() -> None:
+    """``docs/architecture.md`` carries the graph the script draws now."""
+    done = subprocess.run([sys.executable, str(SCRIPT), "--mermaid"], capture_output=True, text=True, timeout=120)
+    doc = (SCRIPT.parents[1] / "docs" / "architecture.md").read_text(encoding="utf-8")
+    assert done.stdout.strip() in doc, "regenerate the graph: python scripts/import_graph.py --mermaid"
