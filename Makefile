@@ -7,7 +7,7 @@ test:
 	bash scripts/test.sh
 
 lint:
-	ruff check src tests bench
+	ruff check src tests bench scripts
 	mypy
 
 quickstart:

@@ -25,8 +25,8 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("foundation", ("mira", "mira.errors", "mira.runio", "mira.cli_types")),
     ("core", ("mira.replay", "mira.tasks", "mira.agents", "mira.rewards", "mira.loop")),
-    ("components", ("mira.factors", "mira.llm", "mira.engineer", "mira.shaping", "mira.mcm", "mira.srr", "mira.baselines",
-                    "mira.engineer.lsfs", "mira.examples")),
+    ("components", ("mira.factors", "mira.llm", "mira.engineer", "mira.shaping", "mira.mcm", "mira.srr",
+                    "mira.baselines", "mira.examples")),
     ("methods", ("mira.outer", "mira.config", "mira.methods", "mira.explain", "mira.train_cli")),
     ("experiments", ("mira.experiments",)),
     ("cli", ("mira.cli", "mira.__main__")),

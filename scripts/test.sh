@@ -3,7 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-ruff check src tests bench
+ruff check src tests bench scripts
 mypy
 export OMP_NUM_THREADS=1
 python -m pytest -q -p no:cacheprovider tests "$@"
