@@ -34,6 +34,11 @@ class AgentConfig:
     """DDPG: std of the Gaussian action noise (actions in [-1, 1])."""
     policy_delay: int = 1
     """Actor (and target) update every this many critic updates."""
+    kernels: str = "fused"
+    """How an update is computed: ``fused`` (explicit backward formulas on reused buffers and one fused
+    Adam call, see :mod:`mira.agents.networks`: the fast path) or ``plain`` (autograd and the optimisers'
+    own ``step()``: the reference, readable top to bottom). The same update up to float rounding
+    (``tests/test_agents.py`` checks they agree)."""
 
 
 @dataclass

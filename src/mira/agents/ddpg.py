@@ -1,9 +1,8 @@
 """Deep Deterministic Policy Gradient (Lillicrap et al., 2016) with Gaussian action noise.
 
-Like SAC, the update runs the networks through :class:`~mira.agents.networks.EnsembleQKernels` and
-:class:`~mira.agents.networks.MLPKernels` (explicit backward formulas on reused buffers) instead of
-autograd; only a reward that requires grad is backpropagated by autograd. Same arithmetic and result
-as the plain autograd version up to float rounding (see bench/RESULTS.md).
+As for SAC, ``AgentConfig.kernels`` chooses between :meth:`DDPG.update_plain` (autograd, the
+reference) and :meth:`DDPG.update_fused` (explicit backward formulas on reused buffers and fused Adam,
+the default); the same update up to float rounding (``tests/test_agents.py``).
 """
 
 from __future__ import annotations
@@ -25,6 +24,7 @@ from mira.agents.networks import (
     make_adam,
     relu_mlp_1d,
 )
+from mira.agents.torch_private import foreach_lerp_
 from mira.replay import Batch
 
 
@@ -70,6 +70,43 @@ class DDPG:
         return action.cpu().numpy()
 
     def update(self, batch: Batch, reward: torch.Tensor) -> dict[str, torch.Tensor]:
+        if self.config.kernels == "plain":
+            return self.update_plain(batch, reward)
+        return self.update_fused(batch, reward)
+
+    def update_plain(self, batch: Batch, reward: torch.Tensor) -> dict[str, torch.Tensor]:
+        """One DDPG update with autograd: the reference :meth:`update_fused` computes faster."""
+        cfg = self.config
+        obs = batch.obs
+        with torch.no_grad():
+            next_action = self.actor_target(batch.next_obs)
+            q_next = self.critic_target(batch.next_obs, next_action)[0]
+        target = reward + cfg.gamma * (1.0 - batch.terminated) * q_next  # the reward may carry gradient
+        q = self.critic(obs, batch.action)
+        critic_loss = (q[0] - target).square().mean()
+        self.critic_opt.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic_opt.step()
+        self.updates += 1
+        metrics = {"critic_loss": critic_loss.detach(), "q_mean": q.detach().mean()}
+        if self.updates % cfg.policy_delay:
+            return metrics
+
+        # Actor: maximise Q(s, π(s)) through the updated critic, which gets no gradient from this loss.
+        q_pi = self.critic(obs, self.actor(obs), params=[p.detach() for p in self.critic.params()])[0]
+        actor_loss = -q_pi.mean()
+        self.actor_opt.zero_grad(set_to_none=True)
+        actor_loss.backward()
+        self.actor_opt.step()
+        with torch.no_grad():
+            for target_p, p in zip(self._targets, self._online, strict=True):
+                target_p.lerp_(p, cfg.tau)
+        metrics["actor_loss"] = actor_loss.detach()
+        return metrics
+
+    def update_fused(self, batch: Batch, reward: torch.Tensor) -> dict[str, torch.Tensor]:
+        """One DDPG update through the explicit-backward kernels and fused Adam; the same update as
+        :meth:`update_plain` up to float rounding."""
         cfg = self.config
         q_k, pi_k = self._q_kernels, self._pi_kernels
         critic, actor = self._critic_params, self._actor_params
@@ -107,7 +144,7 @@ class DDPG:
                 p.grad = g
         self._actor_step.step()
         with torch.no_grad():
-            torch._foreach_lerp_(self._targets, self._online, cfg.tau)
+            foreach_lerp_(self._targets, self._online, cfg.tau)
         metrics["actor_loss"] = actor_loss
         return metrics
 

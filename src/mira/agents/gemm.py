@@ -19,6 +19,7 @@ import os
 
 import torch
 
+from mira.agents.torch_private import onednn_linear, onednn_linear_available
 from mira.errors import UsageError
 
 _CHOICES = ("auto", "onednn", "blas")
@@ -27,7 +28,7 @@ _CHOICES = ("auto", "onednn", "blas")
 def _resolve(choice: str) -> str:
     if choice not in _CHOICES:
         raise UsageError(f"environment variable MIRA_GEMM={choice!r}: expected one of {', '.join(_CHOICES)}")
-    has_onednn = bool(torch.backends.mkldnn.is_available()) and hasattr(torch.ops.mkldnn, "_linear_pointwise")
+    has_onednn = onednn_linear_available()
     if choice == "onednn" and not has_onednn:
         raise UsageError("environment variable MIRA_GEMM=onednn: this PyTorch build has no oneDNN linear primitive")
     return "onednn" if choice != "blas" and has_onednn else "blas"
@@ -51,7 +52,7 @@ def matmul(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None, r
     ``bias [m]``, written into ``out`` when given (then returned)."""
     if (BACKEND or backend()) == "onednn" and a.dtype == torch.float32 and a.device.type == "cpu":
         # The primitive computes a @ wᵀ + bias for a weight w [m, k]: bᵀ is that weight, as a view.
-        res = torch.ops.mkldnn._linear_pointwise(a, b.t(), bias, "relu" if relu else "none", [], "")
+        res = onednn_linear(a, b.t(), bias, relu)
         return res if out is None else out.copy_(res)
     if bias is None:
         res = torch.mm(a, b) if out is None else torch.mm(a, b, out=out)

@@ -26,6 +26,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from mira.agents import gemm
+from mira.agents.torch_private import FUSED_ADAM, foreach_add_, foreach_lerp_, optimizer_has_hooks, relu_backward
 
 
 class EnsembleLinear(nn.Module):
@@ -160,14 +161,14 @@ class EnsembleQKernels:
             return
         # dL/d(pre-activation of the last hidden layer): dq (x) w, where the ReLU was active.
         g = torch.mul(dq.unsqueeze(-1), params[last].transpose(1, 2), out=gbufs[-1])
-        torch.ops.aten.threshold_backward.grad_input(g, h, 0, grad_input=g)
+        relu_backward(g, h, out=g)
         for i in range(last - 2, -1, -2):
             inp = ins[i // 2]
             gemm.bmm(inp.transpose(1, 2), g, out=grads[i])
             torch.sum(g, 1, keepdim=True, out=grads[i + 1])
             if i > 0:
                 g_in = gemm.bmm(g, params[i].transpose(1, 2), out=gbufs[i // 2 - 1])
-                g = torch.ops.aten.threshold_backward.grad_input(g_in, inp, 0, grad_input=g_in)
+                g = relu_backward(g_in, inp, out=g_in)
 
     def input_grad_of_min(self, params: Sequence[torch.Tensor], argmin: torch.Tensor | None, scale: float,
                           input_cols: slice) -> torch.Tensor:
@@ -197,11 +198,11 @@ class EnsembleQKernels:
                 g = w_out[input_cols].expand(ins[0].shape[1] if idx is None else idx.numel(), -1)
             else:
                 h = rows(ins[-1][m])
-                g = torch.ops.aten.threshold_backward(w_out.expand_as(h), h, 0)
+                g = relu_backward(w_out.expand_as(h), h)
                 for i in range(last - 2, 0, -2):
                     inp = rows(ins[i // 2][m])
                     g = gemm.matmul(g, params[i][m].t())
-                    g = torch.ops.aten.threshold_backward.grad_input(g, inp, 0, grad_input=g)
+                    g = relu_backward(g, inp, out=g)
                 g = gemm.matmul(g, w0[m].t())
             if dx is None:
                 return g.contiguous()
@@ -300,7 +301,7 @@ class MLPKernels:
             torch.sum(g, 0, out=grads[i + 1])
             if layer > 0:
                 g_in = gemm.matmul(g, params[i], out=gbufs[layer - 1][:n])
-                g = torch.ops.aten.threshold_backward.grad_input(g_in, inp, 0, grad_input=g_in)
+                g = relu_backward(g_in, inp, out=g_in)
 
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
@@ -339,8 +340,16 @@ class SquashedGaussianActor(nn.Module):
     def sample(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """A reparameterised squashed sample and its log-probability ``[B]``."""
         mean, log_std = self.distribution(obs)
+        return self._squash(mean, log_std, torch.randn_like(mean))
+
+    def sample_with(self, obs: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`sample` with the standard normal draw given (``noise [B, A]``)."""
+        mean, log_std = self.distribution(obs)
+        return self._squash(mean, log_std, noise)
+
+    def _squash(self, mean: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
         std = log_std.exp()
-        noise = torch.randn_like(mean)
         pre = torch.addcmul(mean, std, noise)
         action = torch.tanh(pre)
         # log N(pre; mean, std) - sum log(1 - tanh(pre)^2), the latter in the numerically stable form
@@ -403,7 +412,7 @@ class DeterministicActor(nn.Module):
 def polyak_update(online: nn.Module, target: nn.Module, tau: float) -> None:
     """``target <- (1 - tau) target + tau online`` in one fused foreach call."""
     with torch.no_grad():
-        torch._foreach_lerp_(list(target.parameters()), list(online.parameters()), tau)
+        foreach_lerp_(list(target.parameters()), list(online.parameters()), tau)
 
 
 def make_adam(params: list[nn.Parameter] | list[torch.Tensor], lr: float) -> torch.optim.Adam:
@@ -414,7 +423,6 @@ def make_adam(params: list[nn.Parameter] | list[torch.Tensor], lr: float) -> tor
         return torch.optim.Adam(params, lr=lr, foreach=True)
 
 
-_FUSED_ADAM = getattr(torch, "_fused_adam_", None)
 
 
 class AdamStepper:
@@ -423,7 +431,8 @@ class AdamStepper:
 
     The optimisers stay the source of truth (their state dicts, param groups and learning rates are
     read on every step), and the arithmetic is exactly that of ``Adam(fused=True).step()``: the step
-    counters are incremented, then ``torch._fused_adam_`` updates parameters and moments in place.
+    counters are incremented, then the fused Adam kernel
+    (:data:`~mira.agents.torch_private.FUSED_ADAM`) updates parameters and moments in place.
     Whatever the fast path does not cover (non-fused optimisers, AMSGrad, maximize, capturable or
     differentiable modes, tensor learning rates, optimizer hooks, parameters still without state, a
     PyTorch without the kernel) falls back to the optimiser's own ``step()``.
@@ -470,19 +479,13 @@ class AdamStepper:
                 lists[3].append(st["exp_avg_sq"])
                 lists[4].append(st["step"])
         for (lr, beta1, beta2, wd, eps), (params, grads, m1, m2, steps) in calls.items():
-            torch._foreach_add_(steps, 1)
-            _FUSED_ADAM(params, grads, m1, m2, [], steps, amsgrad=False, lr=lr, beta1=beta1, beta2=beta2,  # type: ignore[misc]
+            foreach_add_(steps, 1)
+            FUSED_ADAM(params, grads, m1, m2, [], steps, amsgrad=False, lr=lr, beta1=beta1, beta2=beta2,  # type: ignore[misc]
                         weight_decay=wd, eps=eps, maximize=False, grad_scale=None, found_inf=None)
 
     @staticmethod
     def _fast_ok(opt: torch.optim.Optimizer) -> bool:
-        if _FUSED_ADAM is None or type(opt) is not torch.optim.Adam:
-            return False
-        if opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks:
-            return False
-        from torch.optim import optimizer as _optimizer_mod
-
-        if _optimizer_mod._global_optimizer_pre_hooks or _optimizer_mod._global_optimizer_post_hooks:
+        if FUSED_ADAM is None or type(opt) is not torch.optim.Adam or optimizer_has_hooks(opt):
             return False
         for g in opt.param_groups:
             if (not g.get("fused") or g.get("amsgrad") or g.get("maximize") or g.get("capturable")

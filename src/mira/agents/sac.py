@@ -5,11 +5,12 @@ critic target is whatever the reward source gave: for HARS it may carry gradient
 which is how the critic loss reaches (phi, varphi) in the joint objective; SAC itself only steps its
 own optimisers.
 
-The update runs the networks through :class:`~mira.agents.networks.EnsembleQKernels` and
-:class:`~mira.agents.networks.MLPKernels` (explicit backward formulas on reused buffers) instead of
-autograd; only a reward that requires grad is backpropagated by autograd. The arithmetic, the order
-of the random draws and the result are those of the plain autograd version up to float rounding
-(see bench/RESULTS.md for how that was checked and what it buys).
+Two ways to compute an update, chosen by ``AgentConfig.kernels``: :meth:`SAC.update_plain` is the
+algorithm with autograd, on one screen; :meth:`SAC.update_fused` (the default) runs the networks
+through :class:`~mira.agents.networks.EnsembleQKernels` and :class:`~mira.agents.networks.MLPKernels`
+(explicit backward formulas on reused buffers) and steps the optimisers in one fused Adam call. The
+arithmetic, the order of the random draws and the result are the same up to float rounding
+(``tests/test_agents.py``); what the fused path buys is in bench/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from mira.agents.networks import (
     squashed_gaussian_backward,
     squashed_gaussian_forward,
 )
+from mira.agents.torch_private import foreach_lerp_
 from mira.replay import Batch
 
 
@@ -80,6 +82,57 @@ class SAC:
         return torch.tanh(torch.addcmul(mean, std, torch.randn_like(mean))).cpu().numpy()
 
     def update(self, batch: Batch, reward: torch.Tensor) -> dict[str, torch.Tensor]:
+        if self.config.kernels == "plain":
+            return self.update_plain(batch, reward)
+        return self.update_fused(batch, reward)
+
+    def update_plain(self, batch: Batch, reward: torch.Tensor) -> dict[str, torch.Tensor]:
+        """One SAC update with autograd: the reference :meth:`update_fused` computes faster."""
+        cfg = self.config
+        obs, n = batch.obs, batch.obs.shape[0]
+        alpha = self.log_alpha.detach().exp()
+        actor_step = (self.updates + 1) % cfg.policy_delay == 0
+        # The standard normal draws, in the fused path's order: the target's, then the actor loss's.
+        noise_next = torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device)
+        noise_pi = torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device) if actor_step else None
+
+        # Critic: soft Bellman target from the target critics; truncation is not a terminal. The reward
+        # may carry gradient (HARS's joint objective): the critic loss then reaches it through the target.
+        with torch.no_grad():
+            next_action, next_logp = self.actor.sample_with(batch.next_obs, noise_next)
+            q_next = self.critic_target(batch.next_obs, next_action).min(0).values - alpha * next_logp
+        target = reward + cfg.gamma * (1.0 - batch.terminated) * q_next
+        q = self.critic(obs, batch.action)
+        critic_loss = (q - target).square().mean(1).sum()
+        self.critic_opt.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic_opt.step()
+        self.updates += 1
+        metrics = {"critic_loss": critic_loss.detach(), "q_mean": q.detach().mean(), "alpha": alpha}
+        if noise_pi is None:
+            return metrics
+
+        # Actor: maximise min-Q minus alpha log-prob on the updated critics (detached: no gradient to them).
+        action, logp = self.actor.sample_with(obs, noise_pi)
+        q_pi = self.critic(obs, action, params=[p.detach() for p in self.critic.params()]).min(0).values
+        actor_loss = (alpha * logp - q_pi).mean()
+        self.actor_opt.zero_grad(set_to_none=True)
+        actor_loss.backward()
+        self.actor_opt.step()
+        if cfg.autotune_alpha:
+            alpha_loss = -(self.log_alpha * (logp.detach() + self.target_entropy)).mean()
+            self.alpha_opt.zero_grad(set_to_none=True)
+            alpha_loss.backward()
+            self.alpha_opt.step()
+        with torch.no_grad():
+            for target_p, p in zip(self.critic_target.parameters(), self.critic.parameters(), strict=True):
+                target_p.lerp_(p, cfg.tau)
+        metrics.update(actor_loss=actor_loss.detach(), entropy=-logp.detach().mean())
+        return metrics
+
+    def update_fused(self, batch: Batch, reward: torch.Tensor) -> dict[str, torch.Tensor]:
+        """One SAC update through the explicit-backward kernels and one fused Adam call (see the module
+        docstring); the same update as :meth:`update_plain` up to float rounding."""
         cfg = self.config
         q_k, pi_k = self._q_kernels, self._pi_kernels
         critic, actor = self._critic_params, self._actor_params
@@ -143,7 +196,7 @@ class SAC:
         else:
             self._actor_step.step()
         with torch.no_grad():
-            torch._foreach_lerp_(self._target_params, critic, cfg.tau)
+            foreach_lerp_(self._target_params, critic, cfg.tau)
         metrics.update(actor_loss=actor_loss, entropy=-logp.mean())
         return metrics
 
