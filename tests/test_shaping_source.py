@@ -15,7 +15,8 @@ from mira.agents import make_agent
 from mira.agents.base import AgentConfig
 from mira.errors import NonFiniteError
 from mira.factors.examples import example_program
-from mira.rewards.base import RewardContext, resolve
+from mira.rewards.base import RewardContext
+from mira.rewards.lookahead import resolve
 from mira.shaping.config import HarsConfig
 from mira.shaping.factors import ProgramFactorSource, RunningStats
 from mira.shaping.source import BASE_LOG_FIELDS, HarsReward

@@ -1,4 +1,4 @@
-"""The trainer's batches sampled ahead (RewardSource.lookahead / relabel_many / revision)."""
+"""The trainer's batches sampled ahead (LookaheadSource.lookahead / relabel_many / revision)."""
 
 from __future__ import annotations
 
@@ -11,12 +11,12 @@ from mira.agents.base import AgentConfig
 from mira.loop.hooks import CycleContext
 from mira.loop.trainer import Trainer, TrainSetup
 from mira.replay import Batch
-from mira.rewards.base import Relabelled, RewardSource
+from mira.rewards.lookahead import LookaheadSource, Relabelled
 from mira.runio.rundir import RunDir
 from mira.tasks.card import load_task
 
 
-class AheadReward(RewardSource):
+class AheadReward(LookaheadSource):
     """The episodic reward, relabelled ``ahead`` batches at a time; records what the trainer does."""
 
     name = "ahead"

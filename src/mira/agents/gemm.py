@@ -1,11 +1,9 @@
 """Dense matrix products of the autograd-free update kernels.
 
-On x86 CPUs PyTorch's default BLAS (MKL) runs single-precision GEMMs with its AVX2 kernels on AMD
-processors, about half the AVX-512 throughput those chips have; the oneDNN primitives PyTorch also
-ships choose their kernels from the CPU's instruction set instead. Measured at one thread on a Zen 5
-EPYC (bench/RESULTS.md): 256x256x256 in 0.15 ms through oneDNN against 0.31 ms through MKL, and the
-same ratio for the transposed operands of the backward passes. The results are the same products up
-to float rounding (~1e-6 relative).
+Two backends compute them: PyTorch's BLAS (``torch.addmm``) and the oneDNN linear primitive PyTorch
+also ships, which picks its kernels from the CPU's instruction set (on some CPUs the BLAS does not use
+the widest vector units; bench/RESULTS.md has the figures). The results are the same products up to
+float rounding.
 
 The backend is chosen once per process: ``MIRA_GEMM=onednn`` or ``blas``, default ``auto`` (oneDNN
 whenever PyTorch exposes it). Only float32 CPU tensors take the oneDNN path; everything else (float64

@@ -8,11 +8,11 @@ The modules (``forward``, ``sample``, ...) are what acting, evaluation and the m
 agents' updates instead run :class:`EnsembleQKernels` and :class:`MLPKernels`, which compute the same
 forward passes and explicit backward passes on activation / gradient buffers reused across updates,
 with :func:`squashed_gaussian_forward` / :func:`squashed_gaussian_backward` for SAC's policy and
-:class:`AdamStepper` for the optimisers. Measured on a 2-core AVX2 CPU (batch 256, 2x256 nets; see
-bench/RESULTS.md) they remove autograd's per-op graph and allocations (and the page faults of fresh
-large allocations), run ReLUs in place, give the critics' width-1 output layer a GEMV (MKL's batched
-GEMM is several times slower at N = 1 and at K = 1), backpropagate the actor's loss through ``min_e
-Q_e`` only where each critic is the minimum, and skip ``Optimizer.step``'s Python bookkeeping.
+:class:`AdamStepper` for the optimisers. Why they are faster: no per-op autograd graph or fresh
+allocations, ReLUs in place, a GEMV for the critics' width-1 output layer, the actor's loss
+backpropagated through ``min_e Q_e`` only where each critic is the minimum, and no
+``Optimizer.step`` bookkeeping. The plain updates (``AgentConfig.kernels = "plain"``) are the
+reference they are tested against; bench/RESULTS.md has what they buy.
 """
 
 from __future__ import annotations

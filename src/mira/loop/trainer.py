@@ -27,7 +27,8 @@ from mira.loop.hooks import CycleContext, CycleHook
 from mira.loop.metrics import MetricSums
 from mira.loop.rollout import Rollout
 from mira.replay import Batch, ReplayBuffer
-from mira.rewards.base import Relabelled, RewardContext, RewardSource, resolve
+from mira.rewards.base import RewardContext, RewardSource
+from mira.rewards.lookahead import LookaheadSource, Relabelled, resolve
 from mira.runio.checkpoint import load_latest, save_checkpoint
 from mira.runio.csvlog import rewind_csv
 from mira.runio.rundir import RunDir
@@ -101,7 +102,7 @@ class Trainer:
         self.recent_returns: list[float] = []
         self._next_ckpt = setup.checkpoint_every
         self._obs: np.ndarray | None = None
-        # Batches sampled and relabelled ahead (see RewardSource.lookahead), with the source's revision
+        # Batches sampled and relabelled ahead (see LookaheadSource), with the source's revision
         # when they were relabelled: used one per update, dropped when the revision moves or at a checkpoint.
         self._ahead: list[tuple[Batch, Relabelled]] = []
         self._ahead_revision = -1
@@ -221,12 +222,16 @@ class Trainer:
         """The next update's batch and its relabelled reward. A source whose reward stays fixed over
         several updates gets their batches sampled now and relabels them together; those batches are
         drawn from the buffer as it is now (the last few stored steps join from the next draw on)."""
-        if not self._ahead or self._ahead_revision != self.reward.revision:
-            n = max(1, self.reward.lookahead())
-            size = self.setup.agent_config.batch_size
-            batches = [self.buffer.gather(self.reward.sample_rows(size, self.rng)).to(device) for _ in range(n)]
-            self._ahead = list(zip(batches, self.reward.relabel_many(batches), strict=True))
-            self._ahead_revision = self.reward.revision
+        size = self.setup.agent_config.batch_size
+        source = self.reward
+        if not isinstance(source, LookaheadSource):
+            batch = self.buffer.gather(source.sample_rows(size, self.rng)).to(device)
+            return batch, source.relabel(batch)
+        if not self._ahead or self._ahead_revision != source.revision:
+            n = max(1, source.lookahead())
+            batches = [self.buffer.gather(source.sample_rows(size, self.rng)).to(device) for _ in range(n)]
+            self._ahead = list(zip(batches, source.relabel_many(batches), strict=True))
+            self._ahead_revision = source.revision
         batch, reward = self._ahead.pop(0)
         return batch, resolve(reward)
 

@@ -12,10 +12,9 @@ requires grad; the agent backpropagates through it and the source steps its own 
 
 from __future__ import annotations
 
-from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, TypeAlias
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -36,16 +35,6 @@ class RewardContext:
     buffer: ReplayBuffer
     seed: int
     run_dir: Path
-
-
-Relabelled: TypeAlias = "torch.Tensor | Future[torch.Tensor]"
-"""A relabelled reward from :meth:`RewardSource.relabel_many`: the tensor, or the Future of a
-computation running beside the agent (wait for it with :func:`resolve` when the batch's turn comes)."""
-
-
-def resolve(reward: Relabelled) -> torch.Tensor:
-    """The tensor of a :data:`Relabelled` reward, waiting for it if it is still being computed."""
-    return reward.result() if isinstance(reward, Future) else reward
 
 
 class RewardSource:
@@ -76,24 +65,6 @@ class RewardSource:
     def update(self, batch: Batch, step: int) -> dict[str, torch.Tensor]:
         """Fit the source's own parameters after the agent's update; returns loggable scalars."""
         return {}
-
-    # A source whose reward stays one fixed function over several updates may relabel the batches of
-    # those updates together, in one pass: the trainer then samples ``lookahead()`` batches at once,
-    # relabels them with ``relabel_many`` and uses them one per update, dropping any it has not used
-    # when ``revision`` changes (the function changed: a new program, loaded state). Rewards of the
-    # batches after the first may be Futures, computed on another thread while the agent updates.
-    def lookahead(self) -> int:
-        """How many upcoming updates' batches :meth:`relabel_many` may relabel now (1: only the next)."""
-        return 1
-
-    def relabel_many(self, batches: list[Batch]) -> list[Relabelled]:
-        """``[relabel(b) for b in batches]``, for at most :meth:`lookahead` batches (sources may batch it)."""
-        return [self.relabel(b) for b in batches]
-
-    @property
-    def revision(self) -> int:
-        """Changes whenever rewards relabelled earlier (and not yet used) would no longer be current."""
-        return 0
 
     def close(self) -> None:
         """Training is over: finish any work in flight and release threads or processes (may be reused after)."""

@@ -59,27 +59,20 @@ class HarsConfig:
     tce_batch: int | None = 32
     """Sampled rows whose windows feed L_aux when it is computed (None: the whole batch)."""
     tce_every: int = 4
-    """Compute L_aux (and step ψ) on every this many HARS training steps. The GRU over W − 1 steps is a
-    chain of small sequential ops that cost more than the rest of HARS on a CPU; every 4th training
-    step on 32 rows keeps the auxiliary signal (8 windows per training step on average) at a
-    fraction of the cost. 1 = every training step, as in Algorithm 3."""
+    """Compute L_aux (and step ψ) on every this many HARS training steps: the GRU is a chain of small
+    sequential ops, and a sample of windows every few steps keeps the auxiliary signal at a fraction of
+    the cost. 1 = every training step, as in Algorithm 3."""
     update_every: int = 8
-    """Train (ϕ, φ, ψ) on every this many agent updates; Φ is evaluated afresh for every sampled batch
-    all the same (the shaped reward always uses the current Φ, which stays one fixed function, weights
-    and input statistics, from one training update to the next: the batches of such a cycle are
-    sampled together and shaped in one pass, and a cycle's step lands when the next cycle starts).
-    One HARS training step costs about ten times the shaping of one batch, so training on every 8th
-    batch keeps HARS's cost per step near the shaping's own on a CPU (see bench/RESULTS.md, "HARS
-    overhead"). 1 = every update, as in Algorithm 3."""
+    """Train (ϕ, φ, ψ) on every this many agent updates; every sampled batch is still shaped by the
+    current Φ (one fixed function between two training steps, so a cycle's batches are shaped
+    together). A training step costs about ten times the shaping of a batch. 1 = every update, as in
+    Algorithm 3."""
     train_in_background: bool | None = None
-    """Run each training step of (ϕ, φ, ψ) (losses, backward, Adam) and each cycle's no-grad shaping
-    pass on a second thread while the agent's updates run. The step lands at the next training
-    update either way (until then the batches are shaped by the potential that shaped the step's own
-    batch), so the run is the same computation, bit for bit, whatever this is; on, most of HARS's
-    cost leaves the critical path when a core is free for it (see bench/RESULTS.md, "HARS
-    overhead"). None (default): on when the process may use more cores than PyTorch's intra-op
-    threads, off otherwise (a pool of intra-op threads on every core would wait at each parallel
-    region for the core the training thread holds). False: everything on the caller's thread."""
+    """Run each training step of (ϕ, φ, ψ) and each cycle's no-grad shaping pass on a second thread
+    beside the agent's updates. The step lands at the next training update either way, so the run is
+    the same computation, bit for bit, whatever this is. None (default): on when the process may use
+    more cores than PyTorch's intra-op threads (otherwise the intra-op pool would wait for the core
+    the thread holds); False: everything on the caller's thread."""
     vpm_hidden: int = 128
     """Width of the two hidden layers of the Value Potential Mapping MLP (Table 1)."""
     vpm_state_proj: bool = False

@@ -57,8 +57,9 @@ import torch
 from mira.agents.networks import AdamStepper, make_adam
 from mira.errors import NonFiniteError
 from mira.replay import Batch
-from mira.rewards.base import Relabelled, RewardContext, RewardSource, resolve
+from mira.rewards.base import RewardContext
 from mira.rewards.episodes import EpisodeStore
+from mira.rewards.lookahead import LookaheadSource, Relabelled, resolve
 from mira.shaping.columns import FactorColumns
 from mira.shaping.config import HarsConfig
 from mira.shaping.decomposition import DecompositionHead, feature_names
@@ -161,7 +162,7 @@ def _split(job: Future[list[torch.Tensor]], n: int) -> list[Relabelled]:
     return list(parts)
 
 
-class HarsReward(RewardSource):
+class HarsReward(LookaheadSource):
     """Hierarchical Attention-based Reward Shaping: decomposition head r̂, FAB → VPM potential Φ aligned
     to r̂, TCE auxiliary; the agent learns from r̂ + κ(γΦ(s′) − Φ(s))."""
 
