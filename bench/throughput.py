@@ -125,12 +125,10 @@ def worker_ours(args: argparse.Namespace) -> dict[str, Any]:
         run = RunDir(path)
         parts = build_method(cfg, card, path)
         marks: list[tuple[int, float, float, float]] = []
-        setup = TrainSetup(
-            card=card, algo=cfg.algo, steps=total, seed=cfg.seed, learning_starts=cfg.learning_starts,
-            buffer_size=cfg.buffer_size, eval_every=10 * total, eval_episodes=1, checkpoint_every=10 * total,
-            log_every=cfg.log_every, max_episode_steps=None, device=torch.device("cpu"), agent_config=cfg.agent,
-            reward=parts.reward, hooks=[*parts.hooks, _timing_hook(args.interval, marks)], quiet=True,
-        )
+        cfg.eval_every, cfg.eval_episodes, cfg.checkpoint_every = 10 * total, 1, 10 * total
+        cfg.max_episode_steps = None
+        setup = TrainSetup(config=cfg, card=card, device=torch.device("cpu"), reward=parts.reward,
+                           hooks=[*parts.hooks, _timing_hook(args.interval, marks)], quiet=True)
         load0 = os.getloadavg()[0]
         Trainer(setup, run).run()
         out = _window(marks, args.learning_starts, args.measure_steps)

@@ -8,6 +8,7 @@ from typing import Any
 import torch
 
 from mira.agents.base import AgentConfig
+from mira.config import TrainConfig
 from mira.loop.hooks import CycleContext
 from mira.loop.trainer import Trainer, TrainSetup
 from mira.replay import Batch
@@ -73,10 +74,11 @@ class BumpRevision:
 def test_batches_sampled_ahead_are_used_once_in_order_and_dropped_when_stale(tmp_path: Path) -> None:
     reward = AheadReward(ahead=4)
     hook = BumpRevision(reward)
-    setup = TrainSetup(card=load_task("halfcheetah"), algo="ddpg", steps=60, seed=0, learning_starts=10,
-                       buffer_size=1000, eval_every=10_000, eval_episodes=1, checkpoint_every=30, log_every=1000,
-                       max_episode_steps=15, device=torch.device("cpu"),
-                       agent_config=AgentConfig(hidden=(8, 8), batch_size=8), reward=reward, hooks=[hook], quiet=True)
+    config = TrainConfig(algo="ddpg", steps=60, seed=0, learning_starts=10, buffer_size=1000, eval_every=10_000,
+                         eval_episodes=1, checkpoint_every=30, log_every=1000, max_episode_steps=15,
+                         agent=AgentConfig(hidden=(8, 8), batch_size=8))
+    setup = TrainSetup(config=config, card=load_task("halfcheetah"), device=torch.device("cpu"), reward=reward,
+                       hooks=[hook], quiet=True)
     trainer = Trainer(setup, RunDir(tmp_path))
     seen_rewards: list[torch.Tensor] = []
     update = trainer.agent.update

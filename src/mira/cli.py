@@ -130,13 +130,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         run.write_config({"config": to_dict(cfg), "task_card": card_to_dict(card),
                           "method": {"description": parts.description, **parts.reward.describe()},
                           "environment": _environment_facts()})
-    setup = TrainSetup(
-        card=card, algo=cfg.algo, steps=cfg.steps, seed=cfg.seed, learning_starts=cfg.learning_starts,
-        buffer_size=cfg.buffer_size, eval_every=cfg.eval_every, eval_episodes=cfg.eval_episodes,
-        checkpoint_every=cfg.checkpoint_every, log_every=cfg.log_every, max_episode_steps=cfg.max_episode_steps,
-        device=resolve_device(cfg.device), agent_config=cfg.agent, reward=parts.reward, hooks=parts.hooks,
-        quiet=args.quiet,
-    )
+    setup = TrainSetup(config=cfg, card=card, device=resolve_device(cfg.device), reward=parts.reward,
+                       hooks=parts.hooks, quiet=args.quiet)
     trainer = Trainer(setup, run)
     try:
         result = trainer.run()

@@ -14,13 +14,14 @@ import logging
 import random
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
 from mira.agents import Agent, make_agent
+from mira.agents.base import AgentConfig
 from mira.errors import CheckpointError, NonFiniteError
 from mira.loop.evaluation import EvalResult, collect_rollout, evaluate
 from mira.loop.hooks import CycleContext, CycleHook
@@ -47,11 +48,9 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-@dataclass
-class TrainSetup:
-    """The parts of one run, built by :func:`mira.methods.build_run` from a config."""
+class RunSettings(Protocol):
+    """What the trainer reads of a run's configuration (:class:`mira.config.TrainConfig` has it all)."""
 
-    card: TaskCard
     algo: str
     steps: int
     seed: int
@@ -62,8 +61,17 @@ class TrainSetup:
     checkpoint_every: int
     log_every: int
     max_episode_steps: int | None
+    agent: AgentConfig
+
+
+@dataclass
+class TrainSetup:
+    """One run, built: what the trainer reads of the configuration, the task, where to compute, and the
+    method's reward source and hooks (:func:`mira.methods.build_method`)."""
+
+    config: RunSettings
+    card: TaskCard
     device: torch.device
-    agent_config: Any
     reward: RewardSource
     hooks: list[CycleHook] = field(default_factory=list)
     quiet: bool = False
@@ -81,26 +89,27 @@ class Trainer:
         self.setup = setup
         self.run_dir = run
         card = setup.card
-        self.env: EpisodicRewardWrapper = make_env(card, seed=setup.seed, max_episode_steps=setup.max_episode_steps)
-        self.eval_env = make_env(card, seed=setup.seed + EVAL_SEED_OFFSET, max_episode_steps=setup.max_episode_steps)
+        cfg = setup.config
+        self.env: EpisodicRewardWrapper = make_env(card, seed=cfg.seed, max_episode_steps=cfg.max_episode_steps)
+        self.eval_env = make_env(card, seed=cfg.seed + EVAL_SEED_OFFSET, max_episode_steps=cfg.max_episode_steps)
         obs_dim = int(self.env.observation_space.shape[0])  # type: ignore[index]
         act_dim = int(self.env.action_space.shape[0])  # type: ignore[index]
         self.obs_dim, self.act_dim = obs_dim, act_dim
-        _seed_everything(setup.seed)
-        self.rng = np.random.default_rng(setup.seed)
-        self.buffer = ReplayBuffer(min(setup.buffer_size, max(setup.steps, 1)), obs_dim, act_dim)
-        self.agent: Agent = make_agent(setup.algo, obs_dim, act_dim, setup.agent_config, setup.device)
+        _seed_everything(setup.config.seed)
+        self.rng = np.random.default_rng(setup.config.seed)
+        self.buffer = ReplayBuffer(min(setup.config.buffer_size, max(setup.config.steps, 1)), obs_dim, act_dim)
+        self.agent: Agent = make_agent(setup.config.algo, obs_dim, act_dim, setup.config.agent, setup.device)
         self.reward = setup.reward
         self.reward.bind(
-            RewardContext(card, obs_dim, act_dim, setup.agent_config.gamma, setup.device, self.buffer,
-                          setup.seed, run.path)
+            RewardContext(card, obs_dim, act_dim, setup.config.agent.gamma, setup.device, self.buffer,
+                          setup.config.seed, run.path)
         )
         self.step = 0
         self.episode = 0
         self.episode_len = 0
         self.last_eval: EvalResult | None = None
         self.recent_returns: list[float] = []
-        self._next_ckpt = setup.checkpoint_every
+        self._next_ckpt = setup.config.checkpoint_every
         self._obs: np.ndarray | None = None
         # Batches sampled and relabelled ahead (see LookaheadSource), with the source's revision
         # when they were relabelled: used one per update, dropped when the revision moves or at a checkpoint.
@@ -120,18 +129,19 @@ class Trainer:
         tb = self.run_dir.tensorboard(purge_step=self.step if resumed else None)
         self.run_dir.set_status("running", self.step)
         if self._obs is None:
-            self._obs, _ = self.env.reset(seed=s.seed)
+            self._obs, _ = self.env.reset(seed=s.config.seed)
         obs = self._obs
         device = s.device
         sums = MetricSums()
         t_start = time.perf_counter()
         t_window, step_window = t_start, self.step
-        bar = tqdm(total=s.steps, initial=self.step, disable=s.quiet, unit="step", dynamic_ncols=True, smoothing=0.05)
+        bar = tqdm(total=s.config.steps, initial=self.step, disable=s.quiet, unit="step", dynamic_ncols=True,
+                   smoothing=0.05)
         postfix: dict[str, Any] = {}
 
-        while self.step < s.steps:
+        while self.step < s.config.steps:
             # -- collect and store
-            if self.step < s.learning_starts:
+            if self.step < s.config.learning_starts:
                 action = self.rng.uniform(-1.0, 1.0, self.act_dim).astype(np.float32)
             else:
                 action = self.agent.act(obs)
@@ -144,19 +154,20 @@ class Trainer:
             obs = next_obs
 
             # -- sample, relabel, update
-            if self.step > s.learning_starts and self._can_sample():
+            if self.step > s.config.learning_starts and self._can_sample():
                 batch, shaped = self._next_batch(device)
                 metrics = self.agent.update(batch, shaped)
                 metrics.update(self.reward.update(batch, self.step))
                 if not sums.add(metrics):
                     self._non_finite(metrics)
 
-            if self.step % s.eval_every == 0 or self.step == s.steps:
-                self.last_eval = evaluate(self.agent, self.eval_env, s.eval_episodes, s.seed + EVAL_SEED_OFFSET)
+            if self.step % s.config.eval_every == 0 or self.step == s.config.steps:
+                self.last_eval = evaluate(self.agent, self.eval_env, s.config.eval_episodes,
+                                          s.config.seed + EVAL_SEED_OFFSET)
                 evals.append({"step": self.step, "return_mean": self.last_eval.mean,
                               "return_std": self.last_eval.std,
                               "length_mean": float(self.last_eval.lengths.mean()),
-                              "episodes": s.eval_episodes, "wall_s": round(time.perf_counter() - t_start, 3)})
+                              "episodes": s.config.eval_episodes, "wall_s": round(time.perf_counter() - t_start, 3)})
                 tb.add_scalar("eval/return_mean", self.last_eval.mean, self.step)
                 postfix["eval"] = f"{self.last_eval.mean:.1f}"
                 if s.quiet:
@@ -169,7 +180,7 @@ class Trainer:
                         tb.add_scalar(f"outer/{name}", value, self.step)
                     postfix.update({n: f"{x:.3g}" for n, x in scalars.items() if n in ("S", "trigger", "version")})
 
-            if self.step % s.log_every == 0:
+            if self.step % s.config.log_every == 0:
                 now = time.perf_counter()
                 sps = (self.step - step_window) / max(now - t_window, 1e-9)
                 t_window, step_window = now, self.step
@@ -192,7 +203,7 @@ class Trainer:
                 self.recent_returns = [*self.recent_returns, float(info["episode_return"])][-10:]
                 self.episode += 1
                 self.episode_len = 0
-                if self.step >= self._next_ckpt or self.step >= s.steps:
+                if self.step >= self._next_ckpt or self.step >= s.config.steps:
                     self._checkpoint()
                 obs, _ = self.env.reset()
 
@@ -222,7 +233,7 @@ class Trainer:
         """The next update's batch and its relabelled reward. A source whose reward stays fixed over
         several updates gets their batches sampled now and relabels them together; those batches are
         drawn from the buffer as it is now (the last few stored steps join from the next draw on)."""
-        size = self.setup.agent_config.batch_size
+        size = self.setup.config.agent.batch_size
         source = self.reward
         if not isinstance(source, LookaheadSource):
             batch = self.buffer.gather(source.sample_rows(size, self.rng)).to(device)
@@ -247,7 +258,7 @@ class Trainer:
 
     def _cycle_context(self) -> CycleContext:
         def rollout(episodes: int, seed_base: int) -> Rollout:
-            seed = self.setup.seed + HOLDOUT_SEED_OFFSET + seed_base
+            seed = self.setup.config.seed + HOLDOUT_SEED_OFFSET + seed_base
             return collect_rollout(self.agent, self.eval_env, episodes, seed)
 
         return CycleContext(step=self.step, agent=self.agent, buffer=self.buffer, reward=self.reward, run=self.run_dir,
@@ -282,7 +293,7 @@ class Trainer:
         self._ahead = []
         self._last_ckpt_step = self.step
         while self._next_ckpt <= self.step:
-            self._next_ckpt += self.setup.checkpoint_every
+            self._next_ckpt += self.setup.config.checkpoint_every
 
     def _restore(self) -> bool:
         found = load_latest(self.run_dir.checkpoints)
@@ -291,7 +302,7 @@ class Trainer:
                 raise CheckpointError(f"{self.run_dir.checkpoints}: no checkpoint passes its hash check")
             return False
         step, state = found
-        if state.get("final_partial_episode") and step < self.setup.steps:
+        if state.get("final_partial_episode") and step < self.setup.config.steps:
             # A run ended mid-episode (its step budget) and is now extended: restart that episode.
             log.warning("checkpoint %d ended mid-episode; the extended run starts a fresh episode", step)
         self.step = state["step"]
@@ -307,7 +318,7 @@ class Trainer:
         random.setstate(rng["python"])
         if rng.get("cuda") is not None and torch.cuda.is_available():
             torch.cuda.set_rng_state_all(rng["cuda"])
-        self.env.reset(seed=self.setup.seed)
+        self.env.reset(seed=self.setup.config.seed)
         self.env.unwrapped.np_random.bit_generator.state = rng["env"]
         self._obs, _ = self.env.reset()
         self.recent_returns = list(state["recent_returns"])
@@ -315,9 +326,9 @@ class Trainer:
             le = state["last_eval"]
             self.last_eval = EvalResult(np.asarray(le["returns"]), np.asarray(le["lengths"]), [])
         self._last_ckpt_step = step
-        self._next_ckpt = self.setup.checkpoint_every
+        self._next_ckpt = self.setup.config.checkpoint_every
         while self._next_ckpt <= self.step:
-            self._next_ckpt += self.setup.checkpoint_every
+            self._next_ckpt += self.setup.config.checkpoint_every
         log.info("resumed from checkpoint at step %d", step)
         return True
 
