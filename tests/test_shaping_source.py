@@ -299,7 +299,7 @@ def test_lookahead_batches_are_shaped_together_as_they_would_be_one_by_one(every
         n = src.lookahead()
         seen.append(n)
         batches = [buf.sample(16, rng) for _ in range(n)]
-        revision, in_flight = src.revision, src._in_flight is not None
+        revision, in_flight = src.revision, src._steps.pending
         rewards = [resolve(r) for r in src.relabel_many(batches)]
         assert len(rewards) == n
         assert (src.revision != revision) == (in_flight and src._trains_now())

@@ -44,9 +44,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-import weakref
 from collections.abc import Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -60,6 +58,7 @@ from mira.replay import Batch
 from mira.rewards.base import RewardContext
 from mira.rewards.episodes import EpisodeStore
 from mira.rewards.lookahead import LookaheadSource, Relabelled, resolve
+from mira.shaping.beside import Beside
 from mira.shaping.columns import FactorColumns
 from mira.shaping.config import HarsConfig
 from mira.shaping.decomposition import DecompositionHead, feature_names
@@ -146,22 +145,6 @@ def _pbrs_rewards(potential: FrozenPotential, f: torch.Tensor, obs: torch.Tensor
     return list((reward - phi[:n]).addcmul_(alive, phi[n:], value=gamma).split(sizes))
 
 
-def _split(job: Future[list[torch.Tensor]], n: int) -> list[Relabelled]:
-    """One Future per element of the list ``job`` will give."""
-    parts: list[Future[torch.Tensor]] = [Future() for _ in range(n)]
-
-    def deliver(done: Future[list[torch.Tensor]]) -> None:
-        error = done.exception()
-        for i, part in enumerate(parts):
-            if error is not None:
-                part.set_exception(error)
-            else:
-                part.set_result(done.result()[i])
-
-    job.add_done_callback(deliver)
-    return list(parts)
-
-
 class HarsReward(LookaheadSource):
     """Hierarchical Attention-based Reward Shaping: decomposition head r̂, FAB → VPM potential Φ aligned
     to r̂, TCE auxiliary; the agent learns from r̂ + κ(γΦ(s′) − Φ(s))."""
@@ -196,11 +179,9 @@ class HarsReward(LookaheadSource):
         self._norm_cache: tuple[torch.Tensor, ...] | None = None
         self._frozen: FrozenPotential | None = None
         self._revision = 0  # counts changes of Φ (see ``revision``)
-        # The latest training step until it lands (see ``update``): its figures, or the Future of the
+        # The latest training step until it lands (see ``update``), and where it runs.
         # thread computing them.
-        self._in_flight: Future[tuple[dict[str, torch.Tensor], torch.Tensor]] | tuple[
-            dict[str, torch.Tensor], torch.Tensor] | None = None
-        self._executor: ThreadPoolExecutor | None = None
+        self._steps: Beside[tuple[dict[str, torch.Tensor], torch.Tensor]] = Beside(self.background)
 
     # --------------------------------------------------------------------------------- set-up
     def bind(self, ctx: RewardContext) -> None:
@@ -530,7 +511,7 @@ class HarsReward(LookaheadSource):
         args = (self._ensure_frozen(), f, obs, reward, alive, self.gamma, self.kappa, sizes)
         if not background:
             return list(_pbrs_rewards(*args))
-        return _split(self._train_thread().submit(_pbrs_rewards, *args), len(batches))
+        return list(self._steps.split(_pbrs_rewards, len(batches), *args))
 
     # -------------------------------------------------------------------------------- update
     def _trains_now(self) -> bool:
@@ -565,10 +546,7 @@ class HarsReward(LookaheadSource):
         self.updates += 1
         self.calls += 1
         first = self._last_metrics is None  # nothing to report yet: this step lands at once
-        if self.background and not first:
-            self._in_flight = self._train_thread().submit(self._train_step, pending, batch, unit, last_l_aux)
-        else:
-            self._in_flight = self._train_step(pending, batch, unit, last_l_aux)
+        self._steps.start(self._train_step, pending, batch, unit, last_l_aux, inline=first)
         if first:
             self.sync()
         assert self._last_metrics is not None
@@ -578,10 +556,10 @@ class HarsReward(LookaheadSource):
         """Land the training step in flight, if any: wait for it, adopt its figures, and let Φ's new
         weights shape from now on. Every read of Φ (shaping with a graph, ``potential``, monitor
         helpers, checkpoints, program changes) does this first."""
-        step, self._in_flight = self._in_flight, None
-        if step is None:
+        landed = self._steps.land()
+        if landed is None:
             return
-        metrics, l_aux = step.result() if isinstance(step, Future) else step
+        metrics, l_aux = landed
         if not bool(torch.isfinite(torch.stack(list(metrics.values()))).all()):
             # Stop before anything (a checkpoint, the next batch) uses the weights this step produced.
             bad = sorted(k for k, v in metrics.items() if not bool(torch.isfinite(v)))
@@ -591,19 +569,9 @@ class HarsReward(LookaheadSource):
         self._last_metrics, self._last_l_aux = metrics, l_aux
         self.weights_changed()
 
-    def _train_thread(self) -> ThreadPoolExecutor:
-        if self._executor is None:
-            # One worker, one intra-op thread: the step's ops are small, and it runs beside the agent.
-            self._executor = ThreadPoolExecutor(1, thread_name_prefix="hars-train", initializer=torch.set_num_threads,
-                                                initargs=(1,))
-            weakref.finalize(self, self._executor.shutdown, wait=False)
-        return self._executor
-
     def close(self) -> None:
         self.sync()
-        if self._executor is not None:
-            self._executor.shutdown(wait=True)
-            self._executor = None
+        self._steps.close()
 
     def _train_step(self, pending: _Pending, batch: Batch, unit: float, last_l_aux: torch.Tensor
                     ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
