@@ -21,7 +21,8 @@ from mira.experiments.grid import (
     parse_seeds,
     preset_grid,
 )
-from mira.experiments.sweep import Plan, Progress, SweepOptions, dry_run, plan_run, train_command
+from mira.experiments.runs import Plan, plan_run, train_command
+from mira.experiments.sweep import Progress, SweepOptions, dry_run
 from mira.methods import METHODS
 
 

@@ -23,7 +23,8 @@ import pytest
 
 from mira.experiments.grid import SweepGrid
 from mira.experiments.report import write_report
-from mira.experiments.sweep import SweepOptions, read_state, run_sweep
+from mira.experiments.runs import read_state
+from mira.experiments.sweep import SweepOptions, run_sweep
 from mira.runio.checkpoint import list_checkpoints
 from mira.runio.csvlog import read_csv
 

@@ -17,7 +17,8 @@ from mira.experiments.metrics import (
     stratified_bootstrap_ci,
 )
 from mira.experiments.report import write_report
-from mira.experiments.sweep import SweepOptions, SweepResult, dry_run, plan_run, run_sweep
+from mira.experiments.runs import plan_run
+from mira.experiments.sweep import SweepOptions, SweepResult, dry_run, run_sweep
 
 __all__ = [
     "RunSpec",
