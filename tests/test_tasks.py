@@ -118,3 +118,74 @@ def test_feature_expressions_are_whitelisted(tmp_path: Path, expr: str, message:
 def test_unknown_task_name() -> None:
     with pytest.raises(TaskCardError, match="unknown task 'walker'"):
         load_task("walker")
+
+
+# ------------------------------------------------------------------------------ cards that say what is wrong
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda t: t.replace('description = "keep', 'eval_horizn = 500\ndescription = "keep'),
+         r"p\.toml: unknown key 'eval_horizn'; did you mean 'eval_horizon'\?"),
+        (lambda t: t.replace('doc = "force on the cart"', 'doc = "force on the cart"\nnmes = ["push"]'),
+         r"p\.toml, action: unknown key 'nmes'; did you mean 'names'\?"),
+        (lambda t: t.replace('units = "rad"', 'unit = "rad"'),
+         r"p\.toml, features\[0\]: unknown key 'unit'; did you mean 'units'\?"),
+        (lambda t: t.replace('name = "pendulum"', 'name = "pendulum\n'), r"p\.toml: does not parse as TOML: .*line 2"),
+        (lambda t: "", r"p\.toml: the file is empty"),
+        (lambda t: "  \n", r"p\.toml: the file is empty"),
+    ],
+)
+def test_bad_cards_name_the_file_the_key_and_the_line(tmp_path: Path, edit: object, message: str) -> None:
+    with pytest.raises(TaskCardError, match=message):
+        load_task(str(_write(tmp_path, "p.toml", edit(CARD.format(index=1)))))  # type: ignore[operator]
+
+
+def test_yaml_parse_errors_give_line_and_column(tmp_path: Path) -> None:
+    text = "name: p\nenv_id: InvertedPendulum-v5\ndescription: [unclosed\naction: {doc: force}\n"
+    with pytest.raises(TaskCardError, match=r"p\.yaml: does not parse as YAML: .*\(at line \d+, column \d+\)"):
+        load_task(str(_write(tmp_path, "p.yaml", text)))
+    with pytest.raises(TaskCardError, match=r"p2\.yaml: the file is empty"):
+        load_task(str(_write(tmp_path, "p2.yaml", "")))
+
+
+def test_action_names_must_match_the_action_dimension(tmp_path: Path) -> None:
+    text = CARD.format(index=1).replace('doc = "force on the cart"', 'doc = "force"\nnames = ["push", "pull"]')
+    card = load_task(str(_write(tmp_path, "p.toml", text)))
+    with pytest.raises(TaskCardError, match=r"p\.toml, action: key 'names' lists 2 names but .* has 1 action"):
+        make_env(card)
+
+
+def test_an_out_of_range_index_names_the_card_file(tmp_path: Path) -> None:
+    card = load_task(str(_write(tmp_path, "p.toml", CARD.format(index=999))))
+    with pytest.raises(TaskCardError, match=r"p\.toml, features\[0\] \('angle'\): reads obs\[999\], but .* 4 entries"):
+        make_env(card)
+
+
+def _doc_cards(tmp_path: Path) -> list[Path]:
+    """The example cards of docs/task_cards.md, written out under their ``file=`` names."""
+    import re
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "task_cards.md").read_text(encoding="utf-8")
+    paths = []
+    for name, body in re.findall(r"```(?:toml|yaml) file=(\S+)\n(.*?)```", doc, flags=re.S):
+        paths.append(_write(tmp_path, name, body))
+    return paths
+
+
+def test_the_documented_example_cards_load_and_read_what_they_say(tmp_path: Path) -> None:
+    paths = _doc_cards(tmp_path)
+    assert {p.suffix for p in paths} == {".toml", ".yaml"} and len(paths) == 2
+    for path in paths:
+        card = load_task(str(path))
+        env = make_env(card)
+        env.reset(seed=0)
+        base = env.unwrapped
+        rng = np.random.default_rng(0)
+        base.data.qpos[:] = rng.normal(size=base.model.nq)  # type: ignore[attr-defined]
+        base.data.qvel[:] = rng.normal(size=base.model.nv)  # type: ignore[attr-defined]
+        values = card.feature_values(base._get_obs()[None, :])  # type: ignore[attr-defined]
+        for feat in card.features:
+            if feat.source is not None:
+                kind, idx = feat.source.split(":")
+                expected = (base.data.qpos if kind == "qpos" else base.data.qvel)[int(idx)]  # type: ignore[attr-defined]
+                assert values[feat.name][0] == pytest.approx(expected), (path.name, feat.name)

@@ -15,6 +15,7 @@ Feature expressions come from a user's own card, but they are still parsed with 
 from __future__ import annotations
 
 import ast
+import difflib
 import tomllib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -28,6 +29,12 @@ import yaml
 from mira.errors import TaskCardError
 
 _CARD_PACKAGE = "mira.tasks.cards"
+
+CARD_KEYS = ("name", "env_id", "description", "features", "action", "eval_horizon", "constraints", "env_kwargs",
+             "band_feature")
+"""Keys a card may have at its top level (docs/task_cards.md explains each)."""
+ACTION_KEYS = ("doc", "names")
+FEATURE_KEYS = ("name", "index", "expr", "units", "doc", "source")
 
 _EXPR_FUNCS: dict[str, Callable[..., np.ndarray]] = {
     "abs": np.abs,
@@ -172,20 +179,28 @@ class TaskCard:
     def feature_names(self) -> list[str]:
         return [f.name for f in self.features]
 
+    @property
+    def where(self) -> str:
+        """How errors name this card: its file when it came from one, else its name."""
+        return self.source_path or repr(self.name)
+
     def bind(self, obs_dim: int) -> None:
         """Check every feature against an observation of ``obs_dim`` entries and compile it."""
         compiled: dict[str, Callable[[np.ndarray], np.ndarray]] = {}
-        for feat in self.features:
+        for i, feat in enumerate(self.features):
             if feat.index is not None:
                 if not 0 <= feat.index < obs_dim:
                     raise TaskCardError(
-                        f"task card {self.name!r}: feature {feat.name!r} reads obs[{feat.index}] but "
-                        f"{self.env_id} observations have {obs_dim} entries"
+                        f"task card {self.where}, features[{i}] ({feat.name!r}): reads obs[{feat.index}], but "
+                        f"{self.env_id} observations have {obs_dim} entries (obs[0] to obs[{obs_dim - 1}])"
                     )
                 compiled[feat.name] = _column(feat.index)
             else:
                 assert feat.expr is not None
-                compiled[feat.name] = _ExprCompiler(feat.name, obs_dim).compile(feat.expr)
+                try:
+                    compiled[feat.name] = _ExprCompiler(feat.name, obs_dim).compile(feat.expr)
+                except TaskCardError as exc:
+                    raise TaskCardError(f"task card {self.where}, features[{i}]: {exc}") from None
         self._compiled = compiled
         self._obs_dim = obs_dim
 
@@ -233,6 +248,15 @@ def builtin_task_names() -> list[str]:
     return sorted(p.name[: -len(".toml")] for p in resources.files(_CARD_PACKAGE).iterdir() if p.name.endswith(".toml"))
 
 
+def _check_keys(data: dict[str, Any], allowed: tuple[str, ...], where: str) -> None:
+    """An unknown key is an error naming the nearest valid one: a typo must not be ignored silently."""
+    for key in data:
+        if key not in allowed:
+            near = difflib.get_close_matches(str(key), allowed, n=1)
+            hint = f"; did you mean {near[0]!r}?" if near else f" (valid keys: {', '.join(allowed)})"
+            raise TaskCardError(f"task card {where}: unknown key {key!r}{hint}")
+
+
 def _require(data: dict[str, Any], key: str, where: str, kind: type | tuple[type, ...]) -> Any:
     if key not in data:
         raise TaskCardError(f"task card {where}: missing required field {key!r}")
@@ -246,17 +270,23 @@ def card_from_dict(data: dict[str, Any], where: str) -> TaskCard:
     """Build and validate a card from parsed TOML/YAML; ``where`` names it in error messages."""
     if not isinstance(data, dict):
         raise TaskCardError(f"task card {where}: expected a table/mapping at the top level")
+    _check_keys(data, CARD_KEYS, where)
     name = _require(data, "name", where, str)
     env_id = _require(data, "env_id", where, str)
     description = _require(data, "description", where, str)
     raw_features = _require(data, "features", where, list)
     action = _require(data, "action", where, dict)
+    _check_keys(action, ACTION_KEYS, f"{where}, action")
+    names = action.get("names", [])
+    if not isinstance(names, list) or not all(isinstance(n, str) and n for n in names):
+        raise TaskCardError(f"task card {where}, action: key 'names' must be a list of non-empty strings")
     features: list[Feature] = []
     seen: set[str] = set()
     for i, raw in enumerate(raw_features):
         at = f"{where}, features[{i}]"
         if not isinstance(raw, dict):
             raise TaskCardError(f"task card {at}: expected a table")
+        _check_keys(raw, FEATURE_KEYS, at)
         fname = _require(raw, "name", at, str)
         if not fname.isidentifier() or fname.startswith("_") or fname == "obs":
             raise TaskCardError(f"task card {at}: feature name {fname!r} is not a valid identifier")
@@ -309,15 +339,22 @@ def _parse_file(path: Path) -> dict[str, Any]:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise TaskCardError(f"task card {path}: cannot read it ({exc.strerror})") from exc
+    if not text.strip():
+        raise TaskCardError(f"task card {path}: the file is empty (docs/task_cards.md has a complete example)")
     try:
         if path.suffix == ".toml":
             return tomllib.loads(text)
         data = yaml.safe_load(text)
-    except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise TaskCardError(f"task card {path}: does not parse: {first}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        # tomllib's message ends with "(at line L, column C)".
+        raise TaskCardError(f"task card {path}: does not parse as TOML: {exc}") from exc
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" (at line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise TaskCardError(f"task card {path}: does not parse as YAML: {problem}{at}") from exc
     if not isinstance(data, dict):
-        raise TaskCardError(f"task card {path}: expected a mapping at the top level")
+        raise TaskCardError(f"task card {path}: expected a mapping at the top level, got {type(data).__name__}")
     return data
 
 

@@ -80,6 +80,9 @@ def make_env(card: TaskCard, seed: int | None = None, max_episode_steps: int | N
     if not isinstance(act_space, gym.spaces.Box) or len(act_space.shape) != 1:
         raise TaskCardError(f"task {card.name!r}: MIRA needs a continuous (Box) action space, got {act_space}")
     card.bind(int(obs_space.shape[0]))
+    if card.action_names and len(card.action_names) != int(act_space.shape[0]):
+        raise TaskCardError(f"task card {card.where}, action: key 'names' lists {len(card.action_names)} names but "
+                            f"{card.env_id} has {int(act_space.shape[0])} action dimensions")
     if not (np.all(act_space.low == -1.0) and np.all(act_space.high == 1.0)):
         ones = np.ones(act_space.shape, dtype=np.float32)
         env = gym.wrappers.RescaleAction(env, min_action=-ones, max_action=ones)
