@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -41,6 +42,25 @@ def test_bad_input_is_one_line_exit_2(tmp_path: Path, args: list[str], needle: s
     assert len(lines) == 1, proc.stderr
     assert needle in lines[0]
     assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "o").exists()  # a bad flag, card or task leaves nothing on disk
+
+
+def test_a_run_whose_program_is_refused_leaves_nothing_and_the_rerun_works(tmp_path: Path) -> None:
+    """A failure before training starts (here: an inadmissible --program) removes the run directory, so
+    the same command with the cause fixed runs without --overwrite or --resume."""
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"task": "halfcheetah", "version": 0, "factors": [
+        {"name": "r_bad", "type": "PHI", "code": "def r_bad(s):\n    import os\n    return s.x_velocity\n",
+         "doc": "d", "units": "m/s", "range_hint": "[-1, 1]"}]}))
+    out = tmp_path / "run"
+    common = ["train", "--method", "hars", "--steps", "300", "--learning-starts", "100", "--eval-every", "300",
+              "--eval-episodes", "1", "--threads", "1", "--quiet", "--out", str(out)]
+    proc = _run([*common, "--program", str(bad)])
+    assert proc.returncode == 2, proc.stderr
+    assert not out.exists()
+    proc = _run(common)
+    assert proc.returncode == 0, proc.stderr
+    assert (out / "config.json").is_file()
 
 
 def test_bad_gemm_backend_is_one_line_exit_2(tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ import json
 import logging
 import os
 import platform
+import shutil
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -100,6 +101,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from mira.agents import gemm
     from mira.loop.trainer import Trainer, TrainSetup, resolve_device
     from mira.runio.rundir import RunDir, prepare_run_dir
+    from mira.tasks.envs import action_dim
 
     gemm.backend()  # a bad MIRA_GEMM is a usage error before anything is written
     if args.resume:
@@ -117,7 +119,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     else:
         if args.out is None:
             raise UsageError("train: --out DIR is required (or --resume DIR)")
+        # Everything that can be checked without a run directory is checked before one exists: a bad
+        # flag, task card or environment leaves nothing on disk.
         cfg = config_from_args(args)
+        action_dim(load_task(cfg.task))  # builds the environment once: the card's indices and action names
         if cfg.learning_starts >= cfg.steps and cfg.method != "sparse":
             logging.getLogger(__name__).warning("learning_starts >= steps: the agent will never update")
         path = prepare_run_dir(args.out, resume=False, overwrite=args.overwrite)
@@ -125,14 +130,21 @@ def cmd_train(args: argparse.Namespace) -> int:
     run = RunDir(path)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    parts = build_method(cfg, card, path)
-    if not args.resume:
-        run.write_config({"config": to_dict(cfg), "task_card": card_to_dict(card),
-                          "method": {"description": parts.description, **parts.reward.describe()},
-                          "environment": _environment_facts()})
-    setup = TrainSetup(config=cfg, card=card, device=resolve_device(cfg.device), reward=parts.reward,
-                       hooks=parts.hooks, quiet=args.quiet)
-    trainer = Trainer(setup, run)
+    try:
+        parts = build_method(cfg, card, path)
+        if not args.resume:
+            run.write_config({"config": to_dict(cfg), "task_card": card_to_dict(card),
+                              "method": {"description": parts.description, **parts.reward.describe()},
+                              "environment": _environment_facts()})
+        setup = TrainSetup(config=cfg, card=card, device=resolve_device(cfg.device), reward=parts.reward,
+                           hooks=parts.hooks, quiet=args.quiet)
+        trainer = Trainer(setup, run)
+    except BaseException:
+        if not args.resume:
+            # The run never started (e.g. the reward engineer's program was refused): nothing of it is
+            # worth keeping, and a directory without a config would block both a rerun and --resume.
+            shutil.rmtree(path, ignore_errors=True)
+        raise
     try:
         result = trainer.run()
     except DiskFullError as exc:
@@ -149,6 +161,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         return 130
     except Exception as exc:
         run.set_status("failed", trainer.step, f"{type(exc).__name__}: {exc}")
+        print(f"mira: the run failed at step {trainer.step}; after fixing the cause, continue it with "
+              f"mira train --resume {path} (from its last checkpoint, or from the start if it has none)",
+              file=sys.stderr)
         raise
     final = "" if result.final_eval is None else f", final eval return {result.final_eval.mean:.2f}"
     print(f"mira: finished {result.steps} steps in {result.wall_s:.1f} s{final}; run directory {path}")
