@@ -105,9 +105,20 @@ def collect(out: Path) -> dict[str, list[tuple[int, list[tuple[int, float]], flo
             continue
         curve = [(int(r["step"]), float(r["return_mean"])) for r in rows]
         wall = float(rows[-1].get("wall_s") or "nan")
-        label = "sb3 SAC" if who == "sb3" else f"mira {who}"
+        label = "SB3 SAC" if who == "sb3" else who
         found.setdefault(f"{label} ({algo})", []).append((int(seed), curve, wall))
     return found
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 def final_return(curve: list[tuple[int, float]], budget: int) -> float | None:
@@ -123,7 +134,7 @@ def table(out: Path, steps: int, header: list[str], budgets: list[int] | None = 
     lines = [*header, "", "| method | budget | final return: IQM [95% CI] | mean ± std | per seed | seeds | "
              "wall s / run |", "|---|---|---|---|---|---|---|"]
     for who, runs in sorted(collect(out).items()):
-        walls = [w for _, _, w in runs if np.isfinite(w)]
+        walls = [w for _, curve, w in runs if np.isfinite(w) and max(s for s, _ in curve) >= max(budgets)]
         wall = f"{np.mean(walls):.0f}" if walls else "-"
         for budget in budgets:
             per_seed = sorted((seed, final_return(curve, budget)) for seed, curve, _ in runs)
@@ -179,7 +190,7 @@ def main() -> None:
         f"{args.learning_starts}, lr {args.lr:g}, eval every {args.eval_every} steps x {args.eval_episodes} episodes; "
         "figure = mean "
         "eval return over the final 10% of the steps reached.",
-        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, 1 torch thread per run, "
+        f"Machine: {_cpu_model()}, {os.cpu_count()} cores, 1 torch thread per run, "
         f"{args.workers} runs in parallel; commit {commit}; extra train flags: {args.train_args or 'none'}.",
     ]
     budgets = [int(b) for b in args.at.split(",") if b] or [args.steps]
