@@ -99,3 +99,41 @@ def test_batches_sampled_ahead_are_used_once_in_order_and_dropped_when_stale(tmp
     assert hook.bumped_at == [17, 34, 51]
     used_per_group = [sum(position[b][0] == g for b in reward.used) for g in range(len(reward.groups))]
     assert used_per_group[:-1] == [4, 3, 4, 4, 4, 1, 4, 4, 4, 4, 4, 1, 4, 4]
+
+
+class ReadStatus:
+    """A hook that reads the run's status.json every cycle, as a person watching the run would."""
+
+    interval = 20
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.seen: list[dict] = []
+
+    def on_cycle(self, ctx: object) -> dict[str, float]:
+        import json
+
+        self.seen.append(json.loads((self.path / "status.json").read_text()))
+        return {}
+
+    def state_dict(self) -> dict:
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        return None
+
+
+def test_status_json_is_live_while_the_run_goes(tmp_path: Path) -> None:
+    from mira.rewards.base import SparseReward
+
+    watcher = ReadStatus(tmp_path)
+    config = TrainConfig(algo="ddpg", steps=100, seed=0, learning_starts=10, buffer_size=1000, eval_every=40,
+                         eval_episodes=1, checkpoint_every=1000, log_every=20, max_episode_steps=15,
+                         agent=AgentConfig(hidden=(8, 8), batch_size=8))
+    setup = TrainSetup(config=config, card=load_task("halfcheetah"), device=torch.device("cpu"),
+                       reward=SparseReward(), hooks=[watcher], quiet=True)
+    Trainer(setup, RunDir(tmp_path)).run()
+    steps = [s["step"] for s in watcher.seen]
+    assert all(s["status"] == "running" for s in watcher.seen)
+    assert steps == sorted(steps) and steps[-1] >= 60 and len(set(steps)) >= 3  # it advances as the run goes
+    assert watcher.seen[-1]["steps_per_s"] > 0 and watcher.seen[-1]["last_eval_return"] is not None

@@ -192,6 +192,10 @@ class Trainer:
                     if isinstance(v, float | int) and k != "step":
                         tb.add_scalar(f"train/{k}", v, self.step)
                 sums.clear()
+                self.run_dir.set_status(
+                    "running", self.step, steps_per_s=round(sps, 2),
+                    last_eval_return=None if self.last_eval is None else round(self.last_eval.mean, 3),
+                    program_version=int(float(postfix["version"])) if "version" in postfix else None)
                 postfix["sps"] = f"{sps:.0f}"
                 bar.set_postfix(postfix, refresh=False)
             bar.update(1)

@@ -67,10 +67,13 @@ class RunDir:
     def write_config(self, data: dict[str, Any]) -> None:
         atomic_write_json(self.path / "config.json", data)
 
-    def set_status(self, status: str, step: int, message: str = "") -> None:
+    def set_status(self, status: str, step: int, message: str = "", **progress: Any) -> None:
+        """``status.json``: the run's state and step, and while it runs its progress figures (steps/s,
+        the last evaluation, the program version), rewritten atomically at every log interval."""
         atomic_write_json(
             self.path / "status.json",
-            {"status": status, "step": step, "message": message, "time": time.strftime("%Y-%m-%dT%H:%M:%S")},
+            {"status": status, "step": step, "message": message, "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+             **progress},
         )
 
     def eval_log(self) -> CsvLog:
