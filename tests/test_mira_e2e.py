@@ -59,3 +59,23 @@ def test_diagnosis_only_on_humanoidstandup_logs_every_cycle_and_never_edits(tmp_
     assert len(rows) == 2 and all(r["version"] == "0" for r in rows)
     assert not (run / "interventions").exists() or not any((run / "interventions").iterdir())
     assert sorted(p.name for p in (run / "programs").glob("*.json")) == ["v000.json"]
+
+
+@pytest.mark.slow
+def test_interventions_are_reported_as_they_happen(tmp_path: Path, fast_train_args: list[str],
+                                                   mira_cmd: list[str]) -> None:
+    """Each verified candidate and each decision is one line of the run's output (here --quiet, as in a log
+    file), with its figures; no progress bar is redrawn into it."""
+    import subprocess
+
+    run = tmp_path / "run"
+    proc = subprocess.run([*mira_cmd, "train", "--task", "halfcheetah", "--method", "mira-no-mcm", "--steps", "800",
+                           "--seed", "0", "--out", str(run), "--quiet", *fast_train_args, *FAST_MIRA],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout + proc.stderr
+    assert "\r" not in out
+    candidates = [ln for ln in out.splitlines() if ": candidate " in ln]
+    decisions = [ln for ln in out.splitlines() if "installed program v" in ln or "backed off, program v" in ln]
+    assert candidates and all("step " in ln for ln in candidates)
+    assert len(decisions) == len(sorted((run / "interventions").glob("*/decision.json"))) >= 1

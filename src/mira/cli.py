@@ -8,6 +8,7 @@ state.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -19,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from tqdm.contrib.logging import logging_redirect_tqdm
 
 from mira import __version__
 from mira.cli_types import Parser
@@ -136,8 +138,10 @@ def cmd_train(args: argparse.Namespace) -> int:
             run.write_config({"config": to_dict(cfg), "task_card": card_to_dict(card),
                               "method": {"description": parts.description, **parts.reward.describe()},
                               "environment": _environment_facts()})
+        # Without a terminal (a log file, a pipe) progress comes as plain lines, never as a redrawn bar.
+        quiet = bool(args.quiet) or not sys.stderr.isatty()
         setup = TrainSetup(config=cfg, card=card, device=resolve_device(cfg.device), reward=parts.reward,
-                           hooks=parts.hooks, quiet=args.quiet)
+                           hooks=parts.hooks, quiet=quiet)
         trainer = Trainer(setup, run)
     except BaseException:
         if not args.resume:
@@ -146,7 +150,8 @@ def cmd_train(args: argparse.Namespace) -> int:
             shutil.rmtree(path, ignore_errors=True)
         raise
     try:
-        result = trainer.run()
+        with contextlib.nullcontext() if quiet else logging_redirect_tqdm():  # event lines above the bar
+            result = trainer.run()
     except DiskFullError as exc:
         print(f"mira: {exc}; the run stopped at its last checkpoint and can be resumed with --resume {path}",
               file=sys.stderr)
@@ -206,8 +211,11 @@ def cmd_explain(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if getattr(args, "quiet", False) else logging.WARNING,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    # A training run reports its events (evaluations with --quiet, the monitor's triggers, SRR's candidates
+    # and decisions) as INFO lines; other commands only warn.
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if getattr(args, "command", None) == "train" or getattr(args, "quiet", False):
+        logging.getLogger("mira").setLevel(logging.INFO)
     handlers = {"train": cmd_train, "factors": cmd_factors, "explain": cmd_explain}
     try:
         handler = handlers.get(args.command) or args.func

@@ -11,6 +11,7 @@ so the environment's state is just its random generator: a resumed run continues
 from __future__ import annotations
 
 import logging
+import math
 import random
 import time
 from dataclasses import dataclass, field
@@ -178,7 +179,9 @@ class Trainer:
                     scalars = hook.on_cycle(self._cycle_context())
                     for name, value in scalars.items():
                         tb.add_scalar(f"outer/{name}", value, self.step)
-                    postfix.update({n: f"{x:.3g}" for n, x in scalars.items() if n in ("S", "trigger", "version")})
+                    postfix.update({n: f"{x:.3g}" for n, x in scalars.items() if n in ("trigger", "version")})
+                    if "S" in scalars:  # the anomaly score is undefined until the monitor has warmed up
+                        postfix["S"] = f"{scalars['S']:.3g}" if math.isfinite(scalars["S"]) else "warming up"
 
             if self.step % s.config.log_every == 0:
                 now = time.perf_counter()

@@ -121,6 +121,11 @@ class MiraOuterLoop:
         elif cfg.mode == "no-mcm":
             wants_srr = (self.cycle + 1) % cfg.periodic_cycles == 0 and self.interventions < cfg.periodic_max
         decision = None
+        if result.trigger:
+            why = ", ".join(f"{str(c['metric']).upper()} {c['value']:+.2f} ({c['reading']})"
+                            for c in result.evidence()["contributors"][:2])
+            log.info("step %d: the monitor triggered (S = %.3g above %.3g): %s", ctx.step, float(result.score),
+                     float(result.threshold), why or "no single leading metric")
         if wants_srr and self.reframer is not None:
             decision = self._reframe(ctx, result, rollout, keep, values[keep], attention, recent)
         self.cycle += 1
@@ -136,8 +141,7 @@ class MiraOuterLoop:
         guided = self.config.mode == "full"
         band = None
         if self.band_feature is not None:
-            values = self.card.feature_values(rollout.obs)[self.band_feature]
-            center, half = stagnation_band(values)
+            center, half = stagnation_band(self.card.feature_values(rollout.obs)[self.band_feature])
             band = {"feature": self.band_feature, "center": center, "halfwidth": half}
         ev = result.evidence()
         evidence = Evidence(
@@ -170,10 +174,13 @@ class MiraOuterLoop:
             self.monitor.on_edit_accepted()
             self.pending_observation = {"operators": decision.operators, "d_before": result.d.tolist(),
                                         "due_cycle": self.cycle + self.config.mcm.k_cool}
-            log.info("step %d: SRR accepted program v%d (%s)", ctx.step, self.program.version, decision.reason)
+            changed = [ln for ln in code_diff(old, self.program).splitlines()
+                       if ln.startswith("+") and not ln.startswith("+++")]
+            log.info("step %d: installed program v%d (%s, %s)%s", ctx.step, self.program.version, decision.reason,
+                     "+".join(decision.operators) or "edit", f": {changed[0][1:].strip()}" if changed else "")
         elif decision.backoff:
             self.monitor.on_backoff(self.config.srr.delta_q)
-            log.info("step %d: SRR abstained (%s)", ctx.step, decision.reason)
+            log.info("step %d: backed off, program v%d kept (%s)", ctx.step, self.program.version, decision.reason)
         return decision
 
     def _observe_pending(self, result: MCMResult) -> None:

@@ -121,6 +121,14 @@ class Reframer:
                                            direction, seed)
             if passed and j_srr is not None:
                 shortlist.append((j_srr, cand))
+            eff = cand.verdicts.get("efficacy")
+            if eff:  # it reached the proxy-efficacy check: its figures say why it passed or not
+                verdict = (f"AUC {eff['auc']:.3f}, p {eff['auc_p']:.3g}, J_SRR {eff['j_srr']:.3f}: "
+                           + ("passed every check" if passed else "rejected"))
+            else:
+                verdict = cand.verdicts.get("rejected", cand.error or "rejected")
+            log.info("step %d: candidate %d [%s]: %s", evidence.step, cand.index, "+".join(cand.operators) or "?",
+                     verdict)
         atomic_write_json(folder / "candidates.json", [self._candidate_record(c) for c in candidates])
         log.info("SRR: %d candidates, %d passed, %.1f s", len(candidates), len(shortlist), time.monotonic() - started)
         if not shortlist:
