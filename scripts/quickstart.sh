@@ -6,10 +6,7 @@
 # within minutes. Each trigger has SRR propose three edits, check and verify them, and install the
 # best one that passes the proxy test, or back off. Which happens depends on the CPU model (float
 # rounding, and with it the run's path, differs between models; one machine reproduces a run exactly).
-# Seed 1 on the AMD EPYC VM of bench/RESULTS.md: the monitor fires at step 15,000 and a posture-gated
-# velocity factor is installed as program v1 (seed 0 there: one trigger, at 12,000, backs off); on the
-# Intel Xeon VM: triggers at 10,000 and 14,000, both back off (the held-out values carry little signal
-# this early; seeds 0 and 2 back off there too). Table 1's
+# What one run showed is in README.md ("Two commands"). Table 1's
 # defaults are ΔT = 5,000, a 10-cycle warm-up and two cycles in a row above the threshold (drop the
 # --set flags for those). One intra-op thread: with two, any other job on a 2-core machine stalls
 # every OpenMP barrier (see bench/RESULTS.md).

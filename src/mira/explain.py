@@ -30,6 +30,10 @@ def _fmt(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.1f}"
 
 
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
 def _decomposition(train: list[dict[str, str]]) -> list[str]:
     """The last logged return decomposition (HARS's head): what the returns were found to be made of."""
     last = next((r for r in reversed(train) if r.get("decomp_r2")), None)
@@ -73,12 +77,16 @@ def explain(run_dir: str | Path) -> str:
         engineer = cfg.get("llm", {}).get("backend", "offline")
         who = "the offline rule-based reward engineer (not an LLM)" if engineer == "offline" else engineer
         lines.append(f"Program v0 was written by {who}: {names}.")
+        if len(programs) > 1:
+            versions = ", ".join(p.stem.lstrip("v").lstrip("0") or "0" for p in programs)
+            lines.append(f"The run ended on program v{int(programs[-1].stem[1:])} (versions: {versions}).")
     lines += _decomposition(read_csv(run / "train.csv"))
     diag = read_csv(run / "diagnostics.csv")
     if diag:
         triggers = [r for r in diag if r.get("trigger") == "1"]
-        lines.append(f"Monitor: {len(diag)} cycles, {len(triggers)} triggers"
-                     + (f" (at steps {', '.join(r['step'] for r in triggers)})." if triggers else "."))
+        lines.append(f"Monitor: {_count(len(diag), 'cycle')}, {_count(len(triggers), 'trigger')}"
+                     + (f" (at step{'s' if len(triggers) > 1 else ''} {', '.join(r['step'] for r in triggers)})."
+                        if triggers else "."))
     interventions = sorted((run / "interventions").glob("*/decision.json"))
     if not interventions and (run / "interventions").exists():
         lines.append("No intervention was made.")
