@@ -121,6 +121,7 @@ def test_rd_is_zero_before_min_episodes_and_bounded_after() -> None:
     gen.feed(buf, src, 4)
     batch = buf.sample(32, np.random.default_rng(0), completed_only=True)
     assert torch.all(src.relabel(batch) == 0.0)
+    assert "rd_loss" not in src.update(batch, 0)  # no fit yet: nothing (not a NaN the trainer would stop on)
     gen.feed(buf, src, 20)
     assert src.regression.count == 8 and src.fits > 0
     assert torch.isfinite(src.relabel(batch)).all()

@@ -227,7 +227,7 @@ class ReturnDecompositionSource(TrajectoryRewardSource):
         if step % cfg.fit_every == 0 and self.store.n_intact() >= cfg.min_episodes:
             for _ in range(cfg.fit_iters):
                 self._loss = self.fit_step()
-        out = {self.loss_field: self._loss}
+        out = {self.loss_field: self._loss} if self.fits else {}  # no fit yet: nothing to report (not NaN)
         out.update(self.extra_metrics())
         out.update(self.diagnostics(batch))
         return out

@@ -105,7 +105,9 @@ class RDReward(TrajectoryRewardSource):
         return self.reward_of(batch.obs, batch.action)
 
     def update(self, batch: Batch, step: int) -> dict[str, torch.Tensor]:
-        out = {"rd_loss": self._loss}
+        # No fit yet (fewer than min_episodes finished): no loss to report, rather than a NaN that would
+        # read as a diverged run.
+        out = {"rd_loss": self._loss} if self.fits else {}
         out.update(self.diagnostics(batch))
         return out
 
