@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -32,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mira.cli import cpu_model
 from mira.experiments.metrics import asymptotic_performance, stratified_bootstrap_ci
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -110,17 +110,6 @@ def collect(out: Path) -> dict[str, list[tuple[int, list[tuple[int, float]], flo
     return found
 
 
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def final_return(curve: list[tuple[int, float]], budget: int) -> float | None:
     """Mean evaluation return over the final 10% of ``budget`` (None if the run did not reach it)."""
     points = [(s, r) for s, r in curve if s <= budget]
@@ -190,7 +179,7 @@ def main() -> None:
         f"{args.learning_starts}, lr {args.lr:g}, eval every {args.eval_every} steps x {args.eval_episodes} episodes; "
         "figure = mean "
         "eval return over the final 10% of the steps reached.",
-        f"Machine: {_cpu_model()}, {os.cpu_count()} cores, 1 torch thread per run, "
+        f"Machine: {cpu_model()}, {os.cpu_count()} cores, 1 torch thread per run, "
         f"{args.workers} runs in parallel; commit {commit}; extra train flags: {args.train_args or 'none'}.",
     ]
     budgets = [int(b) for b in args.at.split(",") if b] or [args.steps]

@@ -70,11 +70,11 @@ def _environment_facts() -> dict[str, Any]:
     return {"mira": __version__, "python": platform.python_version(), "torch": torch.__version__,
             "gemm_backend": gemm.backend(),  # the agents' float32 products: rerun with MIRA_GEMM set to this
             "numpy": numpy.__version__, "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
-            "platform": platform.platform(), "cpu": _cpu_model(),
+            "platform": platform.platform(), "cpu": cpu_model(),
             "cpu_capability": torch.backends.cpu.get_cpu_capability(), "argv": sys.argv}
 
 
-def _cpu_model() -> str:
+def cpu_model() -> str:
     """The CPU's model name. A run's float rounding depends on it (each CPU model gets its own GEMM
     and vector kernels), so the same seed reproduces a run exactly only on the same kind of CPU."""
     try:
