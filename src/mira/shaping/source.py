@@ -6,9 +6,9 @@ What the agent learns from, for a sampled transition (s, a, s′):
 
 with r̂ the decomposition head's per-step reward (:mod:`mira.shaping.decomposition`, fitted to
 episodic returns only) and Φ the FAB → VPM potential TD-aligned to r̂ (:mod:`mira.shaping.objective`).
-κ = 1 by default (0 gives the agent r̂ alone); under ``hars.alignment=episodic`` (the paper's letter) r̂ is replaced by the episodic
-r_ext in both places and κ = 1. Terminals are absorbing; a time-limit truncation keeps Φ(s′), as the
-critic keeps bootstrapping. The pieces:
+κ = 1 by default (0 gives the agent r̂ alone); under ``hars.alignment=episodic`` (the paper's letter)
+r̂ is replaced by the episodic r_ext in both places. Terminals are absorbing; a time-limit truncation
+keeps Φ(s′), as the critic keeps bootstrapping. The pieces:
 
 * :mod:`mira.shaping.columns`: each stored transition's factor values, evaluated lazily in batches;
 * :mod:`mira.shaping.decomposition`: r̂ and its weights, the section-3 evidence MCM/SRR read;
