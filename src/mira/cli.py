@@ -113,6 +113,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             cfg: TrainConfig = from_dict(TrainConfig, saved["config"])
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise UsageError(f"--resume {path}: config.json is unusable ({exc})") from exc
+        card = load_task(cfg.task)
         drift = reproducibility_drift(saved.get("environment") or {}, _environment_facts())
         if drift:
             logging.getLogger(__name__).warning(
@@ -124,11 +125,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         # Everything that can be checked without a run directory is checked before one exists: a bad
         # flag, task card or environment leaves nothing on disk.
         cfg = config_from_args(args)
-        action_dim(load_task(cfg.task))  # builds the environment once: the card's indices and action names
+        card = load_task(cfg.task)
+        action_dim(card)  # builds the environment once: the card's indices and action names
         if cfg.learning_starts >= cfg.steps and cfg.method != "sparse":
             logging.getLogger(__name__).warning("learning_starts >= steps: the agent will never update")
         path = prepare_run_dir(args.out, resume=False, overwrite=args.overwrite)
-    card = load_task(cfg.task)
     run = RunDir(path)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)

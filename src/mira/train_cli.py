@@ -13,7 +13,6 @@ import inspect
 import itertools
 import textwrap
 from functools import cache
-from typing import Any
 
 from mira.agents import ALGOS
 from mira.agents.base import AgentConfig
@@ -37,10 +36,10 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def _help(cls: type, name: str, default: Any = None, extra: str = "") -> str:
+def _help(cls: type, name: str, extra: str = "") -> str:
+    """The field's docstring (``extra`` appended) and its default, as a flag's help."""
     doc = field_docs(cls).get(name, "").replace("%", "%%")
-    shown = getattr(cls(), name) if default is None else default
-    return f"{doc}{extra} (default: {shown})"
+    return f"{doc}{extra} (default: {getattr(cls(), name)})"
 
 
 def add_llm_flags(p: argparse.ArgumentParser) -> None:

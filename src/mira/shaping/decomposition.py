@@ -9,9 +9,8 @@ program:
 fitted in closed form so that every stored episode's sum of r̂ matches its episodic return
 (:class:`~mira.rewards.decomposition.EpisodeSumRegression`, ridge in standardised units), refitted
 after every episode. PHI factors are read at s′ by default because a MuJoCo task's reward is earned
-*over* the step (HalfCheetah's is the displacement during it, which the velocity at s′ tracks):
-measured on HalfCheetah's offline program, r̂ correlates 0.92 with the true per-step reward with PHI
-at s′ against 0.62 at s (``phi_at``). The head only ever sees episodic returns; the dense reward is
+*over* the step (HalfCheetah's is the displacement during it, which the velocity at s′ tracks far
+better than the velocity at s; ``phi_at`` chooses). The head only ever sees episodic returns; the dense reward is
 never read, and no loss of the critic or of Φ trains it.
 
 The w_i are the interpretable weights of section 3: a weight near zero says a factor does not help
@@ -30,6 +29,12 @@ from mira.rewards.decomposition import EpisodeSumRegression
 from mira.shaping.config import HarsConfig
 
 PHI_AT = ("next", "state", "both")
+
+
+def log_fields(phi_names: list[str], aux_names: list[str], phi_at: str) -> tuple[str, ...]:
+    """The ``train.csv`` columns of :meth:`DecompositionHead.figures` for a program's factors."""
+    names = feature_names(phi_names, aux_names, phi_at)
+    return (*(f"w_{n}" for n in names), *(f"share_{n}" for n in names[:-1]), "decomp_r2", "decomp_loss")
 
 
 def feature_names(phi_names: list[str], aux_names: list[str], phi_at: str) -> list[str]:
@@ -92,9 +97,6 @@ class DecompositionHead:
             out["decomp_r2"] = self.regression.r2 if np.isfinite(self.regression.r2) else 0.0
             out["decomp_loss"] = self.regression.loss
         return out
-
-    def log_fields(self) -> tuple[str, ...]:
-        return (*(f"w_{n}" for n in self.names), *(f"share_{n}" for n in self.names[:-1]), "decomp_r2", "decomp_loss")
 
     def describe(self) -> dict[str, Any]:
         """The fitted decomposition as evidence: weights, shares, R², residual, episodes."""

@@ -61,7 +61,8 @@ from mira.rewards.lookahead import LookaheadSource, Relabelled, resolve
 from mira.shaping.beside import Beside
 from mira.shaping.columns import FactorColumns
 from mira.shaping.config import HarsConfig
-from mira.shaping.decomposition import DecompositionHead, feature_names
+from mira.shaping.decomposition import DecompositionHead
+from mira.shaping.decomposition import log_fields as head_log_fields
 from mira.shaping.factors import (
     META_DIM,
     FactorMeta,
@@ -78,9 +79,8 @@ BASE_LOG_FIELDS = ("phi_mean", "phi_std", "l_align", "l_aux", "attn_entropy", "r
 
 
 def _log_fields(config: HarsConfig, factors: FactorSource) -> tuple[str, ...]:
-    names = feature_names(list(factors.phi_names), list(factors.aux_names), config.decompose_phi_at)
-    return (BASE_LOG_FIELDS + tuple(f"attn_{n}" for n in factors.phi_names) + tuple(f"w_{n}" for n in names)
-            + tuple(f"share_{n}" for n in names[:-1]) + ("decomp_r2", "decomp_loss"))
+    head = head_log_fields(list(factors.phi_names), list(factors.aux_names), config.decompose_phi_at)
+    return (*BASE_LOG_FIELDS, *(f"attn_{n}" for n in factors.phi_names), *head)
 
 
 @dataclass
@@ -180,7 +180,6 @@ class HarsReward(LookaheadSource):
         self._frozen: FrozenPotential | None = None
         self._revision = 0  # counts changes of Φ (see ``revision``)
         # The latest training step until it lands (see ``update``), and where it runs.
-        # thread computing them.
         self._steps: Beside[tuple[dict[str, torch.Tensor], torch.Tensor]] = Beside(self.background)
 
     # --------------------------------------------------------------------------------- set-up
