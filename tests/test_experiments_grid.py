@@ -168,15 +168,21 @@ def test_plan_run_decisions(tmp_path: Path) -> None:
     (run / "status.json").write_text(json.dumps({"status": "running", "step": 0}))
     plan = plan_run(spec, tmp_path)
     assert plan.action == "resume"
-    assert train_command(spec, tmp_path, plan)[-3:] == ["--resume", str(run), "--quiet"]
+    assert train_command(spec, tmp_path, plan)[-5:] == ["--resume", str(run), "--steps", str(spec.steps), "--quiet"]
     for p in (run / "checkpoints").iterdir():
         p.unlink()
     plan = plan_run(spec, tmp_path)
     assert plan == Plan("start", plan.reason, overwrite=True)
     assert "--overwrite" in train_command(spec, tmp_path, plan)
-    other = RunSpec("halfcheetah", "dense", "sac", 0, 900)
-    conflict = plan_run(other, tmp_path)
+    shorter = RunSpec("halfcheetah", "dense", "sac", 0, 300)
+    conflict = plan_run(shorter, tmp_path)
     assert conflict.action == "conflict" and "steps=600" in conflict.reason
+    # A longer budget extends the finished run from its last checkpoint.
+    (run / "checkpoints" / "ckpt-0000000600.json").write_text("{}")
+    longer = RunSpec("halfcheetah", "dense", "sac", 0, 900)
+    plan = plan_run(longer, tmp_path)
+    assert plan.action == "resume" and "extend from 600 to 900" in plan.reason
+    assert train_command(longer, tmp_path, plan)[-5:] == ["--resume", str(run), "--steps", "900", "--quiet"]
     (run / "config.json").write_text("{torn")
     assert plan_run(spec, tmp_path) == Plan("start", plan_run(spec, tmp_path).reason, overwrite=True)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -94,3 +95,24 @@ def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path, fast_trai
     resume = [sys.executable, "-m", "mira.cli", "train", "--resume", str(killed), "--quiet"]
     assert subprocess.run(resume, env=env, capture_output=True).returncode == 0
     assert _eval_rows(killed) == _eval_rows(ref)
+
+
+@pytest.mark.slow
+def test_resume_with_larger_steps_extends_the_run_as_if_started_with_them(
+        tmp_path: Path, fast_train_args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    """A finished 1,200-step run extended with ``--resume DIR --steps 2400`` logs what a 2,400-step run
+    logs (its replay buffer grows on restore); only the extra evaluation at its old budget differs."""
+    ref, short = tmp_path / "ref", tmp_path / "short"
+    # train.csv averages over each log interval: the old budget is made an interval's end.
+    args = [*fast_train_args, "--log-every", "400", "--method", "hars"]
+    assert _train(ref, args, steps=2400) == 0
+    assert _train(short, args, steps=1200) == 0
+    assert main(["train", "--resume", str(short), "--steps", "600", "--quiet"]) == 2
+    assert "can only extend" in capsys.readouterr().err
+    assert main(["train", "--resume", str(short), "--steps", "2400", "--quiet"]) == 0
+    assert [r for r in _eval_rows(short) if r[0] != "1200"] == _eval_rows(ref)
+    drop = ("steps_per_s",)
+    assert ([{k: v for k, v in r.items() if k not in drop} for r in read_csv(short / "train.csv")]
+            == [{k: v for k, v in r.items() if k not in drop} for r in read_csv(ref / "train.csv")])
+    saved = json.loads((short / "config.json").read_text())
+    assert saved["config"]["steps"] == 2400 and saved["extended_from"] == [1200]

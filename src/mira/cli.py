@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import logging
 import os
@@ -99,6 +100,28 @@ def reproducibility_drift(recorded: dict[str, Any], now: dict[str, Any]) -> list
             if key in recorded and recorded[key] != now.get(key)]
 
 
+def extend_budget(path: Path, saved: dict[str, Any], cfg: TrainConfig, steps: int) -> TrainConfig:
+    """``--resume DIR --steps N``: the run's configuration with the larger budget ``N``, recorded in its
+    ``config.json`` (with the budgets it had before, under ``"extended_from"``).
+
+    Nothing else in a run depends on its budget except the replay capacity (``min(buffer_size, steps)``),
+    which the buffer grows on restore, so a run extended at an episode boundary continues as a run started
+    with the larger budget would have. A budget below the steps already taken is refused.
+    """
+    from mira.runio.checkpoint import list_checkpoints
+    from mira.runio.rundir import RunDir
+
+    done = max(list_checkpoints(path / "checkpoints"), default=0)
+    if steps < max(done, cfg.steps):
+        raise UsageError(f"--resume {path} --steps {steps}: the run's budget is {cfg.steps} and it has reached "
+                         f"step {done}; --steps can only extend it")
+    extended = dataclasses.replace(cfg, steps=steps)
+    RunDir(path).write_config({**saved, "config": to_dict(extended),
+                               "extended_from": [*saved.get("extended_from", []), cfg.steps]})
+    logging.getLogger(__name__).info("%s: budget extended from %d to %d steps", path, cfg.steps, steps)
+    return extended
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from mira.agents import gemm
     from mira.loop.trainer import Trainer, TrainSetup, resolve_device
@@ -113,6 +136,8 @@ def cmd_train(args: argparse.Namespace) -> int:
             cfg: TrainConfig = from_dict(TrainConfig, saved["config"])
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise UsageError(f"--resume {path}: config.json is unusable ({exc})") from exc
+        if args.steps is not None and args.steps != cfg.steps:
+            cfg = extend_budget(path, saved, cfg, args.steps)
         card = load_task(cfg.task)
         drift = reproducibility_drift(saved.get("environment") or {}, _environment_facts())
         if drift:

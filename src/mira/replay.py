@@ -155,9 +155,15 @@ class ReplayBuffer:
         return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state["capacity"] != self.capacity:
-            raise ValueError(f"checkpoint buffer capacity {state['capacity']} != configured {self.capacity}")
-        n = state["size"]
+        """Restore a saved buffer; a larger capacity is allowed (a run extended to a larger budget) while the
+        saved ring has never wrapped, so every row keeps its index and the rows stay in order."""
+        n, saved_cap = state["size"], state["capacity"]
+        if saved_cap != self.capacity:
+            never_wrapped = state["total_added"] == n and state["pos"] in (n, n % saved_cap)
+            if saved_cap > self.capacity or not never_wrapped:
+                raise ValueError(f"checkpoint buffer capacity {saved_cap} != configured {self.capacity} "
+                                 "(a buffer can only grow, and only before its ring has wrapped)")
+            state = {**state, "pos": n}
         for col in ("obs", "next_obs", "action", "reward", "dense_reward", "terminated", "truncated",
                     "episode_id", "episode_step", "episode_return"):
             getattr(self, col)[:n] = state[col]

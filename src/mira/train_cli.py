@@ -58,7 +58,8 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
     t.add_argument("--task", default=c.task, help=_help(c, "task", extra=f" Built in: {builtin}."))
     t.add_argument("--method", default=c.method, choices=sorted(METHODS), help=_help(c, "method"))
     t.add_argument("--algo", default=c.algo, choices=ALGOS, help=_help(c, "algo"))
-    t.add_argument("--steps", type=positive_int, default=c.steps, help=_help(c, "steps"))
+    t.add_argument("--steps", type=positive_int, default=None,
+                   help=_help(c, "steps", extra=" With --resume, a larger budget extends the run."))
     t.add_argument("--seed", type=nonneg_int, default=c.seed, help=_help(c, "seed"))
     t.add_argument("--out", default=None, help="run directory (required unless --resume)")
     t.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR from its last checkpoint")
@@ -92,7 +93,8 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """The run's configuration: the dataclass defaults, then ``--preset``, the flags, ``--lr`` and ``--set``."""
     cfg = TrainConfig(
-        task=args.task, method=args.method, algo=args.algo, steps=args.steps, seed=args.seed,
+        task=args.task, method=args.method, algo=args.algo,
+        steps=TrainConfig.steps if args.steps is None else args.steps, seed=args.seed,
         learning_starts=args.learning_starts, buffer_size=args.buffer_size, eval_every=args.eval_every,
         eval_episodes=args.eval_episodes, checkpoint_every=args.checkpoint_every, log_every=args.log_every,
         max_episode_steps=args.max_episode_steps, device=args.device, threads=args.threads, program=args.program,

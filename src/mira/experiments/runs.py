@@ -55,7 +55,7 @@ def plan_run(spec: RunSpec, out: str | Path) -> Plan:
     if saved is None or not isinstance(saved.get("config"), dict):
         return Plan("start", "leftover directory without a usable config.json", overwrite=True)
     cfg = saved["config"]
-    expected = {"method": spec.method, "algo": spec.algo, "seed": spec.seed, "steps": spec.steps}
+    expected = {"method": spec.method, "algo": spec.algo, "seed": spec.seed}
     for key, want in expected.items():
         if cfg.get(key) != want:
             return Plan("conflict", f"{run} holds a run with {key}={cfg.get(key)!r}, the grid wants "
@@ -64,10 +64,17 @@ def plan_run(spec: RunSpec, out: str | Path) -> Plan:
     if task_label(str(cfg.get("task", ""))) != task_label(spec.task):
         return Plan("conflict", f"{run} holds a run of task {cfg.get('task')!r}, the grid wants "
                                 f"{spec.task!r}")
+    if not isinstance(cfg.get("steps"), int) or cfg["steps"] > spec.steps:
+        return Plan("conflict", f"{run} holds a run with steps={cfg.get('steps')!r}, the grid wants "
+                                f"{spec.steps!r}; move it away or use another --out")
     status = read_json(run / "status.json") or {}
     if status.get("status") == "finished" and status.get("step") == spec.steps:
         return Plan("skip", "finished")
-    if list_checkpoints(run / "checkpoints"):
+    checkpoints = list_checkpoints(run / "checkpoints")
+    if checkpoints and cfg["steps"] < spec.steps:
+        # A shorter run of the same configuration is extended from its last checkpoint, not started over.
+        return Plan("resume", f"extend from {cfg['steps']} to {spec.steps} steps (at step {checkpoints[-1]})")
+    if checkpoints:
         return Plan("resume", f"{status.get('status', 'unknown')} at step {status.get('step', '?')}")
     return Plan("start", f"{status.get('status', 'unknown')} before its first checkpoint", overwrite=True)
 
@@ -77,7 +84,7 @@ def train_command(spec: RunSpec, out: str | Path, plan: Plan, python: str | None
     base = [python or sys.executable, "-m", "mira.cli", "train"]
     run = str(spec.run_dir(out))
     if plan.action == "resume":
-        return [*base, "--resume", run, "--quiet"]
+        return [*base, "--resume", run, "--steps", str(spec.steps), "--quiet"]
     cmd = [*base, "--task", spec.task, "--method", spec.method, "--algo", spec.algo, "--seed", str(spec.seed),
            "--steps", str(spec.steps), "--out", run]
     if plan.overwrite:
