@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         hars.on_transition(row)
         t_on.append(time.perf_counter() - t0)
     _fill(buf, args.transitions, rng)
-    hars.recompute_all()
+    hars.columns.recompute_all(hars.config.recompute_chunk)
 
     def sparse_step() -> float:
         batch = buf.sample(args.batch_size, rng)
@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         hars_big = HarsReward(ProgramFactorSource(example_program(args.task), card), hars_cfg)
         hars_big.bind(RewardContext(card, obs_dim, act_dim, cfg.gamma, device, big, 0, Path(".")))
         t0 = time.perf_counter()
-        hars_big.recompute_all()
+        hars_big.columns.recompute_all(hars_big.config.recompute_chunk)
         t_re = time.perf_counter() - t0
 
     out = {

@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     cfg = HarsConfig(**{**json.loads(args.hars), "update_every": 1})
     hars = HarsReward(ProgramFactorSource(example_program(args.task), card), cfg)
     hars.bind(RewardContext(card, obs_dim, act_dim, 0.99, torch.device("cpu"), buf, 0, Path(".")))
-    hars.recompute_all()
+    hars.columns.recompute_all(hars.config.recompute_chunk)
     critic_grad = torch.linspace(-1.0, 1.0, args.batch_size) * 1e-2
 
     def step(i: int) -> tuple[float, float]:

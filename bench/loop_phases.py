@@ -9,7 +9,7 @@
 Each method runs ``mira train`` in a fresh subprocess (learning starts at ``--learning-starts``; no
 evaluation or checkpoint inside the run) with thin timers around the agent's ``update`` and ``act``,
 the environment's ``step``, the buffer's ``sample`` and ``add`` and every reward-source hook
-(``relabel``, ``relabel_many``, ``update``, ``on_transition``, ``flush_factors``). Printed: each phase's
+(``relabel``, ``relabel_many``, ``update``, ``on_transition``). Printed: each phase's
 total and its time per update, the wall time per update of the whole loop and, for a source that
 trains on every k-th update (HARS), the agent's update time by position in that cycle (how much the
 source's work slows the agent's next updates through the caches). Methods are run alternately,
@@ -21,7 +21,7 @@ intra-op threads of every run (1 by default).
 
 ``--one-batch-at-a-time`` makes reward sources report a lookahead of 1, i.e. every batch is sampled
 and relabelled right before its update (how the trainer worked before grouped shaping), for A/B runs.
-Nested phases overlap (``relabel_many`` contains ``relabel`` and ``flush_factors``). This is a
+Nested phases overlap (``relabel_many`` contains ``relabel``). This is a
 measurement script, not a test.
 """
 
@@ -44,7 +44,7 @@ PHASES = {
     "agent": ("update", "act"),
     "env": ("step",),
     "buffer": ("sample", "add"),
-    "reward": ("relabel", "relabel_many", "update", "on_transition", "flush_factors"),
+    "reward": ("relabel", "relabel_many", "update", "on_transition"),
 }
 
 

@@ -134,11 +134,11 @@ def _reframe(tmp_path: Path, task: str, hars: HarsReward, held: dict[str, np.nda
 
 
 def _install_and_check_reinit(hars: HarsReward, task: str, program) -> None:  # type: ignore[no-untyped-def]
-    tce_before = {k: v.clone() for k, v in hars.tce.state_dict().items()}
-    fab_before = {k: v.clone() for k, v in hars.fab.state_dict().items()}
+    tce_before = {k: v.clone() for k, v in hars.nets.tce.state_dict().items()}
+    fab_before = {k: v.clone() for k, v in hars.nets.fab.state_dict().items()}
     hars.set_program(ProgramFactorSource(program, load_task(task)))
-    assert all(torch.equal(v, hars.tce.state_dict()[k]) for k, v in tce_before.items())  # ψ kept
-    assert any(not torch.equal(v, hars.fab.state_dict()[k]) for k, v in fab_before.items())  # ϕ fresh
+    assert all(torch.equal(v, hars.nets.tce.state_dict()[k]) for k, v in tce_before.items())  # ψ kept
+    assert any(not torch.equal(v, hars.nets.fab.state_dict()[k]) for k, v in fab_before.items())  # ϕ fresh
     assert list(hars.phi_names) == [f.name for f in program.factors if f.type == "PHI"]
 
 

@@ -108,7 +108,7 @@ def test_alignment_target_is_r_hat_and_phi_gets_no_dense_or_episodic_signal() ->
         pending = src._pending
         assert pending is not None
         rows = torch.from_numpy(batch.indices)
-        expected_base = batch.reward if alignment == "episodic" else src._decomposed(rows)
+        expected_base = batch.reward if alignment == "episodic" else src.decomposed.of_rows(rows)
         assert torch.equal(pending.base, expected_base)
         b = batch.reward.shape[0]
         phi = pending.phi.detach()
@@ -133,7 +133,7 @@ def test_kappa_adds_the_pbrs_term_in_grouped_and_single_relabelling() -> None:
     for batch, reward in zip(batches, grouped, strict=True):
         rows = torch.from_numpy(batch.indices)
         phi_s, phi_n = src.potential(batch.obs), src.potential(batch.next_obs)
-        expected = src._decomposed(rows) + 0.5 * (src.gamma * (1.0 - batch.terminated) * phi_n - phi_s)
+        expected = src.decomposed.of_rows(rows) + 0.5 * (src.gamma * (1.0 - batch.terminated) * phi_n - phi_s)
         torch.testing.assert_close(reward, expected, rtol=1e-5, atol=1e-5)
 
 

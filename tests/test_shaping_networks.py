@@ -189,7 +189,7 @@ def test_id_embedding_follows_the_name_after_training() -> None:
     reordered = toy_factors(["f_b", "f_c", "f_a"])
     torch.testing.assert_close(src.proxy_potential(reordered, obs), src.potential(obs), rtol=1e-5, atol=1e-5)
     # the slots are a name table: a new name gets a fresh slot, old names keep theirs
-    slots = dict(src.slots)
+    slots = dict(src.nets.slots)
     src.set_program(toy_factors(["f_c", "f_new", "f_a"]))
-    assert {n: src.slots[n] for n in slots} == slots
-    assert src.slots["f_new"] == len(slots)
+    assert {n: src.nets.slots[n] for n in slots} == slots
+    assert src.nets.slots["f_new"] == len(slots)

@@ -28,7 +28,7 @@ def test_discounted_shaped_return_telescopes(seed: int, length: int, gamma: floa
     src, buf = make_hars(toy_factors(), seed=seed, gamma=gamma, capacity=64,
                          config=HarsConfig(vpm_state_proj=bool(seed % 2), alignment="episodic"))
     with torch.no_grad():  # an arbitrary potential: random network, random output scale and offset
-        last = src.vpm.mlp[-1]
+        last = src.nets.vpm.mlp[-1]
         last.weight.mul_(scale)
         last.bias.add_(scale * (seed % 7 - 3))
     rng = np.random.default_rng(seed)
@@ -68,10 +68,10 @@ def test_relabel_uses_the_current_potential() -> None:
     batch = buf.sample(16, rng)
     with torch.no_grad():
         before = src.relabel(batch)
-        src.vpm.mlp[-1].bias.add_(1.0)  # Φ ← Φ + σ_R: shaped reward moves by σ_R (γ·(1 − d) − 1)
+        src.nets.vpm.mlp[-1].bias.add_(1.0)  # Φ ← Φ + σ_R: shaped reward moves by σ_R (γ·(1 − d) − 1)
         src.weights_changed()  # an edit outside ``update`` says so (the shaping caches derived tensors)
         after = src.relabel(batch)
-    unit = src.phi_scale
+    unit = src.memory.phi_scale
     assert unit > 1.0  # the episode's return set the unit Φ is learned in
     torch.testing.assert_close(after - before, unit * (src.gamma * (1 - batch.terminated) - 1.0), rtol=1e-4,
                                atol=1e-4)
@@ -97,9 +97,10 @@ def test_relabel_after_a_training_step_uses_the_new_weights_and_statistics() -> 
         b = probe.reward.shape[0]
         rows = torch.from_numpy(probe.indices)
         f = torch.cat([src.columns.phi[rows], src.columns.phi_next[rows]])
-        norm = src._norm()
-        assert src._snapshot is not None and np.array_equal(src._snapshot.f_mean, src.factor_stats.mean)  # fresh
-        phi = src._forward(f, torch.cat([probe.obs, probe.next_obs]), norm)[0]
+        norm = src.nets.norm()
+        snap = src.nets.snapshot
+        assert snap is not None and np.array_equal(snap.f_mean, src.memory.factor_stats.mean)  # fresh
+        phi = src.nets.forward(f, torch.cat([probe.obs, probe.next_obs]), norm)[0]
     want = probe.reward + src.gamma * (1 - probe.terminated) * phi[b:] - phi[:b]
     torch.testing.assert_close(after, want, rtol=1e-5, atol=1e-5)
     assert not torch.allclose(after, before)

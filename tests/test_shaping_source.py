@@ -53,14 +53,14 @@ def test_update_logs_every_field_and_leaves_no_gradients() -> None:
     assert all(isinstance(v, torch.Tensor) and v.dim() == 0 and torch.isfinite(v) for v in metrics.values())
     assert float(sum(metrics[f"attn_{n}"] for n in ("f_a", "f_b", "f_c"))) == pytest.approx(1.0, abs=1e-5)
     assert metrics["l_aux"] > 0  # windows of the same episode exist, so the TCE is trained
-    assert all(p.grad is None for g in src.opt.param_groups for p in g["params"])
+    assert all(p.grad is None for g in src.nets.opt.param_groups for p in g["params"])
 
 
 def test_update_changes_fab_vpm_and_tce() -> None:
     src, buf, rng = _filled()
-    before = {k: v.clone() for m in (src.fab, src.vpm, src.tce) for k, v in m.state_dict().items()}
+    before = {k: v.clone() for m in (src.nets.fab, src.nets.vpm, src.nets.tce) for k, v in m.state_dict().items()}
     _train(src, buf, rng, 2)
-    after = {k: v for m in (src.fab, src.vpm, src.tce) for k, v in m.state_dict().items()}
+    after = {k: v for m in (src.nets.fab, src.nets.vpm, src.nets.tce) for k, v in m.state_dict().items()}
     changed = [k for k in before if not torch.equal(before[k], after[k])]
     assert any(k.startswith("gru") for k in changed) and any(k.startswith("mlp") for k in changed)
     assert "w_attn" in changed
@@ -80,8 +80,8 @@ def test_joint_gradient_equals_backprop_through_the_critic(algo: str) -> None:
         reward = src.relabel(batch)
         assert reward.requires_grad
         captured: list[torch.Tensor] = []
-        params = [p for g in src.opt.param_groups for p in g["params"]]
-        src.opt.step = lambda *a, **k: captured.extend(  # type: ignore[method-assign]
+        params = [p for g in src.nets.opt.param_groups for p in g["params"]]
+        src.nets.opt.step = lambda *a, **k: captured.extend(  # type: ignore[method-assign]
             torch.zeros_like(p) if p.grad is None else p.grad.clone() for p in params)
         if direct:  # the naive way: the agent's backward walks a (second) HARS graph into the parameters
             pend = src._pending
@@ -89,7 +89,7 @@ def test_joint_gradient_equals_backprop_through_the_critic(algo: str) -> None:
             b = batch.reward.shape[0]
             idx = torch.from_numpy(batch.indices)
             f = torch.cat([src.columns.phi[idx], src.columns.phi_next[idx]])
-            phi = src._forward(f, torch.cat([batch.obs, batch.next_obs]), src._norm(), n_phi=2 * b)[0]
+            phi = src.nets.forward(f, torch.cat([batch.obs, batch.next_obs]), src.nets.norm(), n_phi=2 * b)[0]
             agent.update(batch, pend.base + src.gamma * (1 - batch.terminated) * phi[b:] - phi[:b])
             pend.leaf = None
         else:
@@ -108,7 +108,7 @@ def test_joint_gradient_equals_backprop_through_the_critic(algo: str) -> None:
 @pytest.mark.parametrize("every", [1, 3])
 def test_training_runs_on_every_kth_update_but_phi_is_always_current(every: int) -> None:
     src, buf, rng = _filled(config=HarsConfig(update_every=every))
-    params = lambda: [p.detach().clone() for m in (src.fab, src.vpm) for p in m.parameters()]  # noqa: E731
+    params = lambda: [p.detach().clone() for m in (src.nets.fab, src.nets.vpm) for p in m.parameters()]  # noqa: E731
     changed = []
     for step in range(7):
         before = params()
@@ -143,40 +143,41 @@ def test_update_without_relabel_recomputes_the_forward() -> None:
 
 def test_recompute_all_equals_per_row_values() -> None:
     src, buf, _ = _filled(config=HarsConfig(recompute_chunk=7))
-    src.flush_factors()  # rows stored since the last batch needed them are evaluated now
+    src.columns.flush()  # rows stored since the last batch needed them are evaluated now
     n = buf.size
     cols = [c[:n].clone() for c in (src.columns.phi, src.columns.phi_next, src.columns.aux)]
     running = RunningStats(3)
-    running.load_state_dict(src.factor_stats.state_dict())
+    running.load_state_dict(src.memory.factor_stats.state_dict())
     for c in (src.columns.phi, src.columns.phi_next, src.columns.aux):
         c.zero_()
-    src.recompute_all()
+    src.columns.recompute_all(src.config.recompute_chunk, reset_stats=True)
     for before, c in zip(cols, (src.columns.phi, src.columns.phi_next, src.columns.aux), strict=True):
         assert torch.equal(before, c[:n])
     # batch statistics after the reset agree with the per-row running (Welford) ones
-    np.testing.assert_allclose(src.factor_stats.mean, running.mean, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(src.factor_stats.var, running.var, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(src.factor_stats.mean, cols[0].double().mean(0).numpy(), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(src.memory.factor_stats.mean, running.mean, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(src.memory.factor_stats.var, running.var, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(src.memory.factor_stats.mean, cols[0].double().mean(0).numpy(), rtol=1e-6, atol=1e-6)
 
 
 def test_set_program_reinitialises_exactly_phi_and_varphi() -> None:
     src, buf, rng = _filled()
     _train(src, buf, rng, 3)
-    tce_before = {k: v.clone() for k, v in src.tce.state_dict().items()}
-    tce_opt_before = {id(p): {k: v.clone() for k, v in src.opt.state[p].items()} for p in src.tce.parameters()}
-    phi_before = {k: v.clone() for m in ("fab", "vpm") for k, v in getattr(src, m).state_dict().items()}
-    old_fab = src.fab
+    tce_before = {k: v.clone() for k, v in src.nets.tce.state_dict().items()}
+    opt_state = src.nets.opt.state
+    tce_opt_before = {id(p): {k: v.clone() for k, v in opt_state[p].items()} for p in src.nets.tce.parameters()}
+    phi_before = {k: v.clone() for m in ("fab", "vpm") for k, v in getattr(src.nets, m).state_dict().items()}
+    old_fab = src.nets.fab
     new = toy_factors(("f_b", "f_d"))
     src.set_program(new)
-    assert src.fab is not old_fab
-    for k, v in src.tce.state_dict().items():
+    assert src.nets.fab is not old_fab
+    for k, v in src.nets.tce.state_dict().items():
         assert torch.equal(v, tce_before[k]), k
-    for p in src.tce.parameters():  # ψ keeps its Adam moments
-        for k, v in src.opt.state[p].items():
+    for p in src.nets.tce.parameters():  # ψ keeps its Adam moments
+        for k, v in src.nets.opt.state[p].items():
             assert torch.equal(v, tce_opt_before[id(p)][k])
     for p in src.phi_parameters():  # ϕ, φ start with fresh optimiser state
-        assert p not in src.opt.state
-    after = {k: v for m in ("fab", "vpm") for k, v in getattr(src, m).state_dict().items()}
+        assert p not in src.nets.opt.state
+    after = {k: v for m in ("fab", "vpm") for k, v in getattr(src.nets, m).state_dict().items()}
     for k, v in after.items():
         assert not torch.equal(v, phi_before[k]), k
     assert src.phi_names == ["f_b", "f_d"] and src.columns.phi.shape[1] == 2
@@ -209,7 +210,7 @@ def test_state_round_trip_resumes_bit_identically() -> None:
         mb = (b.relabel(batch).detach(), b.update(batch, step))
         assert torch.equal(ma[0], mb[0])
         assert all(torch.equal(ma[1][k], mb[1][k]) for k in ma[1])
-    for ma_, mb_ in ((a.fab, b.fab), (a.vpm, b.vpm), (a.tce, b.tce)):
+    for ma_, mb_ in ((a.nets.fab, b.nets.fab), (a.nets.vpm, b.nets.vpm), (a.nets.tce, b.nets.tce)):
         for (k, x), (_, y) in zip(ma_.state_dict().items(), mb_.state_dict().items(), strict=True):
             assert torch.equal(x, y), k
 
@@ -229,7 +230,7 @@ def test_monitor_helpers() -> None:
     proxy = src.proxy_potential(toy_factors(("f_a", "f_zz")), obs)
     assert proxy.shape == (50,) and torch.isfinite(proxy).all()
     assert all(torch.equal(x, y) for x, y in zip(before, src.phi_parameters(), strict=True))
-    assert "f_zz" not in src.slots
+    assert "f_zz" not in src.nets.slots
 
 
 def test_program_adapter_and_resume_after_an_edit() -> None:
@@ -261,21 +262,22 @@ def test_factor_columns_are_evaluated_before_anything_reads_them() -> None:
     lazy, buf, rng = _filled(seed=3)
     eager = HarsReward(toy_factors(), HarsConfig(shaping_weight=1.0))
     eager.bind(lazy.ctx)  # the same buffer (and seed), evaluated row by row below
-    eager.return_sq = lazy.return_sq  # σ_R and the decomposition come from episode ends, not from the rows
-    eager.head = lazy.head
-    eager._head_changed()
+    # σ_R and the decomposition come from episode ends, not from the rows
+    eager.memory.return_sq = lazy.memory.return_sq
+    eager.decomposed.head = lazy.head
+    eager.decomposed.changed()
     rows = np.arange(buf.size)
     for row in rows:
         eager.on_transition(int(row))
-        eager.flush_factors()
+        eager.columns.flush()
     batch = buf.sample(64, rng)
     with torch.no_grad():
         torch.testing.assert_close(lazy.relabel(batch), eager.relabel(batch), rtol=1e-6, atol=1e-6)
     for x, y in ((lazy.columns.phi, eager.columns.phi), (lazy.columns.phi_next, eager.columns.phi_next),
                  (lazy.columns.aux, eager.columns.aux)):
         assert torch.equal(x[: buf.size], y[: buf.size])
-    np.testing.assert_allclose(lazy.factor_stats.mean, eager.factor_stats.mean, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(lazy.obs_stats.var, eager.obs_stats.var, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(lazy.memory.factor_stats.mean, eager.memory.factor_stats.mean, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(lazy.memory.obs_stats.var, eager.memory.obs_stats.var, rtol=1e-9, atol=1e-12)
     # a stored row is pending until a batch, the statistics, an episode's end (the decomposition head
     # reads the episode's factors) or a checkpoint needs it
     ep = int(buf.episode_id[buf.pos - 1]) + 1
@@ -353,7 +355,7 @@ def test_a_non_finite_training_step_stops_the_run_before_its_weights_are_used(ba
         src.relabel(batch)
         src.update(batch, step)
     with torch.no_grad():
-        src.vpm.mlp[-1].bias.fill_(float("nan"))  # Φ is NaN from here on
+        src.nets.vpm.mlp[-1].bias.fill_(float("nan"))  # Φ is NaN from here on
     batch = buf.sample(16, rng)
     src.relabel(batch)
     metrics = src.update(batch, 2)  # the step is launched; the figures are the last landed step's

@@ -19,7 +19,6 @@ from mira.factors.edits import (
     Add,
     EditError,
     Gate,
-    ProgramHistory,
     Prune,
     Refactor,
     Sat,
@@ -30,6 +29,7 @@ from mira.factors.edits import (
 )
 from mira.factors.evaluator import CompiledProgram, FactorHealth, FactorRuntimeError
 from mira.factors.examples import example_program, example_programs
+from mira.factors.history import ProgramHistory
 from mira.factors.program import (
     Factor,
     FactorProgram,

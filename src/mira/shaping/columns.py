@@ -105,3 +105,15 @@ class FactorColumns:
         self.phi[:n] = state["phi"]
         self.phi_next[:n] = state["phi_next"]
         self.aux[:n] = state["aux"]
+
+
+def window_rows(buffer: ReplayBuffer, rows: np.ndarray, w: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Buffer rows of the ``w − 1`` steps before each of ``rows`` (oldest first), and whether each is in
+    the same episode (the TCE's context windows)."""
+    r = torch.from_numpy(rows)
+    offs = torch.arange(w - 1, 0, -1)
+    past = (r[:, None] - offs[None, :]) % buffer.capacity
+    same_episode = buffer.episode_id[past] == buffer.episode_id[r][:, None]
+    valid = (buffer.episode_step[r][:, None] >= offs[None, :]) & same_episode
+    return past, valid
+

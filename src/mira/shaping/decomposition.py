@@ -24,9 +24,13 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import torch
 
 from mira.rewards.decomposition import EpisodeSumRegression
+from mira.rewards.episodes import EpisodeStore
+from mira.shaping.columns import FactorColumns
 from mira.shaping.config import HarsConfig
+from mira.shaping.factors import FactorSource
 
 PHI_AT = ("next", "state", "both")
 
@@ -116,3 +120,62 @@ class DecompositionHead:
         self.regression.load_state_dict(state["regression"])
         self.weights = np.asarray(state["weights"], dtype=np.float64).copy()
         self.shares = np.asarray(state["shares"], dtype=np.float64).copy()
+
+
+class DecomposedReward:
+    """r̂ over the current program: a :class:`DecompositionHead` fed from the factor columns, evaluated
+    on stored rows (relabelling) and on raw transitions (held-out rollouts)."""
+
+    def __init__(self, config: HarsConfig, factors: FactorSource, columns: FactorColumns) -> None:
+        self.factors, self.columns = factors, columns
+        self.head = DecompositionHead(config, list(factors.phi_names), list(factors.aux_names))
+        self.changed()
+
+    def _inputs(self, rows: np.ndarray) -> np.ndarray:
+        return self.head.features(*self.columns.numpy_rows(rows))
+
+    def add_episode(self, rows: np.ndarray, episode_return: float) -> None:
+        """A finished episode's rows (factors evaluated or pending) and its return; refits the head."""
+        self.head.add_episode(self._inputs(np.asarray(rows, dtype=np.int64)), float(episode_return))
+        self.changed()
+
+    def refit(self, episodes: EpisodeStore, capacity: int) -> None:
+        """Fit the (fresh) head on every stored episode still intact: a new program's first fit."""
+        episodes.prune()
+        for i in range(episodes.intact_start(), len(episodes)):
+            first, n = int(episodes.first[i]), int(episodes.length[i])
+            rows = (first + np.arange(n)) % capacity
+            self.head.add_episode(self._inputs(rows), float(episodes.returns[i]))
+        self.changed()
+
+    def changed(self) -> None:
+        """Take the head's new weights: as tensors for relabelling, as figures for the log."""
+        w = self.head.weights
+        k, k_aux = len(self.head.phi_names), len(self.head.aux_names)
+        at = self.head.config.decompose_phi_at
+        n_s = k if at in ("state", "both") else 0
+        n_n = k if at in ("next", "both") else 0
+        t = torch.from_numpy(w.astype(np.float32))
+        self._w_s, self._w_n = t[:n_s], t[n_s:n_s + n_n]
+        self._w_aux, self._w_bias = t[n_s + n_n:n_s + n_n + k_aux], float(w[-1])
+        self.metrics = {name: torch.tensor(v, dtype=torch.float32) for name, v in self.head.figures().items()}
+
+    def of_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        """r̂ of stored rows ``[B]`` (their factors must be evaluated), on the CPU."""
+        r = torch.full((rows.shape[0],), self._w_bias, dtype=torch.float32)
+        if self._w_n.numel():
+            r = r.addmv_(self.columns.phi_next.index_select(0, rows), self._w_n)
+        if self._w_s.numel():
+            r = r.addmv_(self.columns.phi.index_select(0, rows), self._w_s)
+        if self._w_aux.numel():
+            r = r.addmv_(self.columns.aux.index_select(0, rows), self._w_aux)
+        return r
+
+    def of_transitions(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray) -> np.ndarray:
+        """r̂ of raw transitions (float32 arrays ``[N, ·]``): ``[N]`` float64."""
+        if obs.shape[0] == 0:
+            return np.zeros(0)
+        f = self.factors
+        aux = f.aux(obs, np.asarray(actions, dtype=np.float32)) if f.aux_names else np.zeros((len(obs), 0))
+        x = self.head.features(f.phi(obs), f.phi(next_obs), aux)
+        return np.asarray(x @ self.head.weights, dtype=np.float64)

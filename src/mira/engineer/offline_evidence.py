@@ -1,0 +1,136 @@
+"""What the offline engineer reads from an SRR request: its ``context``, checked and normalised.
+
+The engineer sees only what the request carries (what an LLM is sent, as JSON), never MIRA's objects,
+so it is held to the same information; a malformed context is refused with
+:class:`~mira.llm.base.LLMRequestRejectedError`, as a remote endpoint would refuse a bad request.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from mira.engineer.factorcode import features_used
+from mira.engineer.srr_prompt import return_is_poor
+from mira.llm.base import LLMRequestRejectedError
+
+OPERATORS: tuple[str, ...] = ("Scale", "Sat", "Gate", "Refactor", "Add", "Prune")
+METRICS: tuple[str, ...] = ("PEG", "TPD", "PVC", "FAP", "RPE")
+
+
+@dataclass
+class RequestContext:
+    """An SRR request's ``context`` as the offline engineer reads it, checked and normalised.
+
+    Not :class:`mira.engineer.srr_prompt.Evidence`: the engineer sees only what the request carries
+    (what an LLM is sent, as JSON), never MIRA's objects, so it is held to the same information."""
+
+    factors: list[dict[str, Any]]
+    z: dict[str, float]
+    raw: dict[str, float]
+    grad: dict[str, float]
+    anomaly_score: float | None
+    recent_mean: float | None
+    baseline: float | None
+    band: dict[str, float | str] | None
+    posture: str | None
+    max_candidates: int
+    allowed: tuple[str, ...]
+    guided: bool
+    feature_names: list[str]
+    attention: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def poor_return(self) -> bool:
+        """Return is not improving on its baseline (unknown counts as poor: MCM fired anyway)."""
+        return return_is_poor(self.recent_mean, self.baseline)
+
+
+def _floats(raw: Any) -> dict[str, float]:
+    out: dict[str, float] = {}
+    if isinstance(raw, dict):
+        for key in METRICS:
+            value = raw.get(key)
+            if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+                out[key] = float(value)
+    return out
+
+
+def _opt_float(value: Any) -> float | None:
+    if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    return None
+
+
+def parse_evidence(context: dict[str, Any]) -> RequestContext:
+    program = context.get("program")
+    if isinstance(program, str):
+        try:
+            program = json.loads(program)
+        except json.JSONDecodeError:
+            program = None
+    if not isinstance(program, dict) or not isinstance(program.get("factors"), list):
+        raise LLMRequestRejectedError("offline engineer: SRR needs context['program'] with a 'factors' list")
+    factors: list[dict[str, Any]] = []
+    for f in program["factors"]:
+        if not (
+            isinstance(f, dict)
+            and isinstance(f.get("name"), str)
+            and isinstance(f.get("code"), str)
+            and f.get("type") in ("PHI", "AUX")
+        ):
+            raise LLMRequestRejectedError(f"offline engineer: malformed factor in context['program']: {f!r}")
+        factors.append(copy.deepcopy(f))
+    trend_raw = context.get("return_trend")
+    trend: dict[str, Any] = trend_raw if isinstance(trend_raw, dict) else {}
+    band_raw = context.get("stagnation_band")
+    band: dict[str, float | str] | None = None
+    if isinstance(band_raw, dict):
+        center, half = _opt_float(band_raw.get("center")), _opt_float(band_raw.get("halfwidth"))
+        feat = band_raw.get("feature", "torso_height")
+        if center is not None and half is not None and isinstance(feat, str) and feat.isidentifier():
+            band = {"feature": feat, "center": center, "halfwidth": abs(half)}
+    allowed_raw = context.get("allowed_operators")
+    allowed = tuple(op for op in OPERATORS if allowed_raw is None or op in allowed_raw)
+    try:
+        max_candidates = int(context.get("max_candidates", 3))
+    except (TypeError, ValueError):
+        raise LLMRequestRejectedError(
+            "offline engineer: context['max_candidates'] must be an integer"
+        ) from None
+    names: list[str] = []
+    for item in context.get("features") or []:
+        name = item.get("name") if isinstance(item, dict) else item
+        if isinstance(name, str) and name not in names:
+            names.append(name)
+    for f in factors:
+        for name in features_used(f["code"]):
+            if name not in names and name != "obs":
+                names.append(name)
+    posture = context.get("posture_feature")
+    attention_raw = context.get("factor_attention")
+    attention = {
+        str(k): float(v)
+        for k, v in (attention_raw.items() if isinstance(attention_raw, dict) else [])
+        if isinstance(v, int | float) and math.isfinite(v)
+    }
+    guided = bool(context.get("guided", True))
+    return RequestContext(
+        factors=factors,
+        z=_floats(context.get("diagnostics")) if guided else {},
+        raw=_floats(context.get("raw_diagnostics")) if guided else {},
+        grad=_floats(context.get("gradient")) if guided else {},
+        anomaly_score=_opt_float(context.get("anomaly_score")),
+        recent_mean=_opt_float(trend.get("recent_mean")),
+        baseline=_opt_float(trend.get("baseline")),
+        band=band if guided else None,
+        posture=posture if isinstance(posture, str) and posture.isidentifier() else None,
+        max_candidates=max(max_candidates, 0),
+        allowed=allowed,
+        guided=guided,
+        feature_names=names,
+        attention=attention,
+    )

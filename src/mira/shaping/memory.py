@@ -1,0 +1,99 @@
+"""What HARS keeps of the stored transitions, and what it derives from them between training steps.
+
+* the current program's factor values of every stored row (:class:`~mira.shaping.columns.FactorColumns`)
+  and the running statistics of factors and observations Φ normalises its inputs with;
+* the stored episodes and σ_R, the running scale of episodic returns that Φ is learned in;
+* the decomposition r̂ fitted to those episodes (:class:`~mira.shaping.decomposition.DecomposedReward`).
+
+A new program (:meth:`FactorMemory.install`) re-evaluates every stored row and refits r̂ on the stored
+episodes; the observation statistics, the episodes and σ_R carry over, as they do not depend on it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from mira.replay import ReplayBuffer
+from mira.rewards.episodes import EpisodeStore
+from mira.shaping.columns import FactorColumns
+from mira.shaping.config import HarsConfig
+from mira.shaping.decomposition import DecomposedReward
+from mira.shaping.factors import FactorSource, RunningStats
+from mira.shaping.potential import STD_FLOOR, InputSnapshot
+
+
+class FactorMemory:
+    """Factor columns, statistics, stored episodes, σ_R and r̂ over one replay buffer."""
+
+    def __init__(self, config: HarsConfig, buffer: ReplayBuffer, obs_dim: int) -> None:
+        self.config = config
+        self.buffer = buffer
+        self.obs_stats = RunningStats(obs_dim)
+        self.episodes = EpisodeStore(buffer, config.decompose_max_episodes)
+        self.return_sq: float | None = None
+        """EMA of squared episodic returns: σ_R² (see HarsConfig.return_scale)."""
+        self.columns: FactorColumns  # these two come with the program (``install``)
+        self.decomposed: DecomposedReward
+
+    def install(self, factors: FactorSource, recompute: bool = False) -> None:
+        """Columns and a fresh r̂ for ``factors``; with ``recompute`` (a program change after training
+        began) every stored row is evaluated now, the factor statistics restart from the stored states,
+        and r̂ is fitted on the stored episodes."""
+        if recompute:
+            self.columns.flush()  # with the old program: its rows' states stay in the observation statistics
+        self.columns = FactorColumns(factors, self.buffer, self.obs_stats)
+        self.decomposed = DecomposedReward(self.config, factors, self.columns)
+        if recompute:
+            self.columns.recompute_all(self.config.recompute_chunk, reset_stats=True)
+            self.decomposed.refit(self.episodes, self.buffer.capacity)
+
+    @property
+    def factor_stats(self) -> RunningStats:
+        """Running statistics of the current program's PHI values."""
+        return self.columns.factor_stats
+
+    @property
+    def phi_scale(self) -> float:
+        """σ_R: the unit Φ is learned in (1 until an episode has ended, or with ``return_scale`` off)."""
+        if not self.config.return_scale or self.return_sq is None:
+            return 1.0
+        return max(1.0, math.sqrt(self.return_sq))
+
+    def input_snapshot(self) -> InputSnapshot:
+        """The statistics Φ normalises its inputs with, and σ_R, as of now (pending rows evaluated first)."""
+        self.columns.flush()
+        fs, os_ = self.factor_stats, self.obs_stats
+        return InputSnapshot(fs.mean.copy(), np.maximum(fs.std, STD_FLOOR), os_.mean.copy(),
+                             np.maximum(os_.std, STD_FLOOR), self.phi_scale)
+
+    def on_episode_end(self, rows: np.ndarray, episode_return: float) -> bool:
+        """Fold a finished episode into σ_R and, when it is stored whole, into r̂; True when r̂ changed."""
+        if not math.isfinite(episode_return):
+            return False
+        sq = float(episode_return) ** 2
+        rho = self.config.return_scale_ema
+        self.return_sq = sq if self.return_sq is None else (1.0 - rho) * self.return_sq + rho * sq
+        if not self.episodes.add(rows, episode_return):
+            return False
+        self.decomposed.add_episode(rows, episode_return)
+        return True
+
+    def state_dict(self) -> dict[str, Any]:
+        # The columns first: that evaluates pending rows (flush points stay the same on resume).
+        columns = self.columns.state_dict()
+        return {"columns": columns, "episodes": self.episodes.state_dict(),
+                "head": self.decomposed.head.state_dict(), "return_sq": self.return_sq,
+                "factor_stats": self.factor_stats.state_dict(), "obs_stats": self.obs_stats.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.return_sq = state.get("return_sq")
+        self.factor_stats.load_state_dict(state["factor_stats"])
+        self.obs_stats.load_state_dict(state["obs_stats"])
+        self.columns.load_state_dict(state["columns"])
+        if "head" in state:  # format 1 (before the decomposition head): the head starts empty
+            self.episodes.load_state_dict(state["episodes"])
+            self.decomposed.head.load_state_dict(state["head"])
+            self.decomposed.changed()
