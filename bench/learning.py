@@ -42,7 +42,8 @@ def run_ours(method: str, algo: str, seed: int, steps: int, out: Path, extra: li
     """One `mira train` run; its curve is the run directory's own eval.csv."""
     run = out / f"{method}{suffix}-{algo}-s{seed}"
     if (run / "config.json").exists():  # an interrupted benchmark resumes its runs
-        cmd = [sys.executable, "-m", "mira.cli", "train", "--resume", str(run), "--quiet"]
+        # ``--steps`` also extends a finished run to a larger budget from its last checkpoint.
+        cmd = [sys.executable, "-m", "mira.cli", "train", "--resume", str(run), "--steps", str(steps), "--quiet"]
     else:
         cmd = [sys.executable, "-m", "mira.cli", "train", "--task", task, "--method", method, "--algo", algo,
                "--steps", str(steps), "--seed", str(seed), "--out", str(run), "--overwrite", "--threads", "1",

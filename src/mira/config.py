@@ -101,12 +101,12 @@ def _is_tuple_hint(hint: Any) -> bool:
 
 
 PRESETS: dict[str, tuple[str, ...]] = {
-    "paper": ("agent.lr=1e-4", "hars.lr=1e-4"),
+    "paper": ("agent.lr=1e-4", "hars.lr=1e-4", "mira.mcm.delta_t=5000", "mira.repair=false"),
 }
 """Named sets of ``--set`` assignments (``mira train --preset NAME``), applied before ``--lr`` and
-``--set``. ``paper``: Table 1's learning rate for every network (the other Table 1 values are the
-defaults already). The paper's alignment of Φ to the episodic reward is a separate switch,
-``--set hars.alignment=episodic``."""
+``--set``. ``paper``: Table 1's learning rate for every network and its monitoring cycle (ΔT = 5,000
+steps), and the monitor's anomaly trigger alone (the other Table 1 values are the defaults already). The
+paper's alignment of Φ to the episodic reward is a separate switch, ``--set hars.alignment=episodic``."""
 
 
 def apply_override(cfg: Any, assignment: str) -> None:

@@ -42,6 +42,11 @@ class RequestContext:
     guided: bool
     feature_names: list[str]
     attention: dict[str, float] = field(default_factory=dict)
+    unexplained: list[dict[str, Any]] = field(default_factory=list)
+    """Task features that explain returns the program cannot, largest gain first: ``{feature, form
+    ('value' or 'neg_square'), gain, cv_r2, range}`` (see :mod:`mira.shaping.attribution`)."""
+    program_r2: float | None = None
+    """The program's own out-of-sample R² of the returns, when the request carries it."""
 
     @property
     def poor_return(self) -> bool:
@@ -118,6 +123,7 @@ def parse_evidence(context: dict[str, Any]) -> RequestContext:
         if isinstance(v, int | float) and math.isfinite(v)
     }
     guided = bool(context.get("guided", True))
+    program_r2, unexplained = _attribution(context.get("return_attribution"), names)
     return RequestContext(
         factors=factors,
         z=_floats(context.get("diagnostics")) if guided else {},
@@ -133,4 +139,27 @@ def parse_evidence(context: dict[str, Any]) -> RequestContext:
         guided=guided,
         feature_names=names,
         attention=attention,
+        unexplained=unexplained if guided else [],
+        program_r2=program_r2 if guided else None,
     )
+
+
+def _attribution(raw: Any, features: list[str]) -> tuple[float | None, list[dict[str, Any]]]:
+    """The well-formed entries of ``context['return_attribution']`` about the card's own features."""
+    if not isinstance(raw, dict):
+        return None, []
+    out: list[dict[str, Any]] = []
+    for item in raw.get("feature_gains") or []:
+        if not isinstance(item, dict):
+            continue
+        name, form, gain = item.get("feature"), item.get("form"), _opt_float(item.get("gain"))
+        rng = item.get("range")
+        if not (isinstance(name, str) and name in features and form in ("value", "neg_square") and gain is not None):
+            continue
+        lo = hi = None
+        if isinstance(rng, list) and len(rng) == 2:
+            lo, hi = _opt_float(rng[0]), _opt_float(rng[1])
+        out.append({"feature": name, "form": form, "gain": gain, "cv_r2": _opt_float(item.get("cv_r2")),
+                    "range": None if lo is None or hi is None else (min(lo, hi), max(lo, hi))})
+    out.sort(key=lambda e: -e["gain"])
+    return _opt_float(raw.get("program_cv_r2")), out

@@ -42,6 +42,8 @@ from mira.engineer.offline_evidence import METRICS, RequestContext, parse_eviden
 from mira.llm.base import OFFLINE_ENGINEER_LABEL
 
 # Rule thresholds: standardised values are robust z-scores (median/MAD), raw values as in 4.3.1.
+UNEXPLAINED_MIN_GAIN = 0.02  # out-of-sample R² of the returns a task feature must add to be proposed
+UNEXPLAINED_CANDIDATES = 2  # Add candidates from the attribution, best features first
 PVC_LOW_Z = -1.0
 PVC_LOW_RAW = 0.1
 RPE_HIGH_Z = 1.0
@@ -459,6 +461,44 @@ def _rule_candidates(ev: RequestContext, metric: str) -> list[tuple[dict, list[d
     return []
 
 
+def add_unexplained(ev: RequestContext) -> list[tuple[dict, list[dict]]]:
+    """Structural repair: Add the task features that explain the returns the program cannot.
+
+    The evidence is the decomposition's attribution: with a feature's per-episode sum added to the
+    program's factors the out-of-sample R² of the episodic returns rises by ``gain``. The feature enters
+    in the shape that earned the gain (its value, or minus its square), as a PHI factor of its own; the
+    decomposition head then finds its weight, so neither its scale nor its sign need be guessed.
+    Nothing here depends on the feature's or the program's names.
+    """
+    out: list[tuple[dict, list[dict]]] = []
+    used: set[str] = set()
+    for entry in ev.unexplained:
+        if entry["gain"] < UNEXPLAINED_MIN_GAIN or entry["feature"] in used:
+            continue
+        feature, form, rng = entry["feature"], entry["form"], entry["range"]
+        used.add(feature)
+        if form == "value":
+            expr, polarity = f"s.{feature}", "reward"
+            hint = format_range(*rng) if rng else "[-10, 10]"
+        else:
+            expr, polarity = f"-1.0 * s.{feature} ** 2", "penalty"
+            hint = format_range(-max(rng[0] ** 2, rng[1] ** 2), 0.0) if rng else "[-10, 0]"
+        name = _fresh_name(ev, f"r_{feature}" if form == "value" else f"r_{feature}_sq")
+        before = "?" if ev.program_r2 is None else f"{ev.program_r2:.3f}"
+        after = "?" if entry["cv_r2"] is None else f"{entry['cv_r2']:.3f}"
+        why = (f"the program's factors explain the episodic returns out of sample with R² {before}; with "
+               f"{'' if form == 'value' else '-'}{feature}{'' if form == 'value' else '²'} added, {after} "
+               f"(+{entry['gain']:.3f}): the program misses what the task pays for (Add)")
+        factor = make_factor(name, "PHI", expr, doc=f"task feature {feature} ({form}), added because it explains "
+                             "returns the program could not", units="1", range_hint=hint)
+        factor["polarity"] = polarity
+        params = {"new_factor": name, "type": "PHI", "feature": feature, "form": form, "code": factor["code"]}
+        out.append((_edit("Add", [name], params, why), [*copy.deepcopy(ev.factors), factor]))
+        if len(out) >= UNEXPLAINED_CANDIDATES:
+            break
+    return out
+
+
 def _generic(ev: RequestContext) -> list[tuple[dict, list[dict]] | None]:
     """Unguided edits (no diagnostics): tame the largest-range Φ-factors."""
     widest = widest_factors(ev)
@@ -485,6 +525,10 @@ def propose(context: dict[str, Any]) -> dict[str, Any]:
     ev = parse_evidence(context)
     ranked: list[RankedEdit] = []
     order = 0
+    for edit, factors in add_unexplained(ev) if "Add" in ev.allowed else []:
+        # Evidence that the program cannot express the returns outranks every diagnostic rule.
+        ranked.append(RankedEdit(edit, factors, 1000.0 - order, order))
+        order += 1
     if ev.guided:
         strengths = _strengths(ev)
         for metric in sorted(strengths, key=lambda m: (-strengths[m], METRICS.index(m))):

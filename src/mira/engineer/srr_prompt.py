@@ -68,6 +68,9 @@ class Evidence:
     decomposition: dict[str, Any] | None = None
     """HARS's return decomposition (section 3's parametric alignment): per-feature weights and shares
     of r̂, the fit's R² and per-step residual (:meth:`DecompositionHead.describe`); None when absent."""
+    return_attribution: dict[str, Any] | None = None
+    """Which task features explain returns the program cannot (:meth:`ReturnAttribution.as_dict`): the
+    program's out-of-sample R² of the returns and each feature's gain; None when not measured."""
 
     @property
     def poor_return(self) -> bool:
@@ -108,6 +111,21 @@ def _decomposition_lines(ev: Evidence) -> list[str]:
     ]
 
 
+def _attribution_lines(ev: Evidence) -> list[str]:
+    att = ev.return_attribution
+    if not att or not att.get("feature_gains"):
+        return []
+    lines = [f"RETURNS_THE_PROGRAM_CANNOT_EXPLAIN (out-of-sample R² of the episode returns over {att['episodes']} "
+             f"episodes: the program's factors {float(att['program_cv_r2']):.3f}; with one task feature added "
+             "(read at s′, as its value or as minus its square):"]
+    for g in att["feature_gains"]:
+        shape = g["feature"] if g["form"] == "value" else f"-{g['feature']}²"
+        lo, hi = g["range"]
+        lines.append(f"  - {shape}: R² {float(g['cv_r2']):.3f} ({float(g['gain']):+.3f}), observed range "
+                     f"[{lo:.4g}, {hi:.4g}]")
+    return lines
+
+
 def _diagnostics_block(ev: Evidence, hypotheses: list[Hypothesis]) -> str:
     if not ev.guided:
         return "\n".join([
@@ -140,6 +158,7 @@ def _diagnostics_block(ev: Evidence, hypotheses: list[Hypothesis]) -> str:
         lines.append("  failure_hypotheses (preferred operators):")
         lines += [f"    - {h.operator}: {h.because}" for h in hypotheses]
     lines += _decomposition_lines(ev)
+    lines += _attribution_lines(ev)
     return "\n".join(lines)
 
 
@@ -192,6 +211,7 @@ def build_srr_request(
         "features": [{"name": f.name, "units": f.units, "doc": f.doc} for f in card.features],
         "factor_attention": dict(evidence.attention) if evidence.guided else {},
         "decomposition": evidence.decomposition,
+        "return_attribution": evidence.return_attribution if evidence.guided else None,
     }
     return LLMRequest(
         messages=[{"role": "system", "content": system}, {"role": "user", "content": user}],

@@ -9,6 +9,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+TABLE1_DELTA_T = 5000
+"""Table 1's ΔT: what a monitor used on its own (outside a run, e.g. in a replay) counts a cycle as."""
+
 
 @dataclass
 class MCMConfig:
@@ -24,9 +27,11 @@ class MCMConfig:
     buffer_size: int = 128
     """Healthy-buffer capacity ``N_B`` (Table 1), FIFO eviction."""
 
-    delta_t: int = 5000
-    """Outer-cycle length ``ΔT`` in environment steps (Table 1). Used for d_PEG when the step
-    difference between snapshots is unavailable (first cycle, or a non-increasing step)."""
+    delta_t: int | None = None
+    """Outer-cycle length ``ΔT`` in environment steps. None (the default): one episode of the task
+    (``--max-episode-steps``, else the card's ``eval_horizon``), so that warm-up, detection and repair
+    fit in a 50k–100k-step run; under Table 1's 5,000 (``--preset paper``) the ten warm-up cycles alone
+    take 50k steps. Also used for d_PEG when the step difference between snapshots is unavailable."""
 
     k_cool: int = 10
     """Cooldown ``K_cool`` in cycles (Table 1), set after a trigger and after an accepted edit."""
@@ -137,7 +142,7 @@ class MCMConfig:
             raise ValueError("buffer_min cannot exceed buffer_size")
         if not 0.0 <= self.ema_beta < 1.0:
             raise ValueError("ema_beta must be in [0, 1)")
-        if self.m_base < 1 or self.delta_t < 1:
+        if self.m_base < 1 or (self.delta_t is not None and self.delta_t < 1):
             raise ValueError("m_base and delta_t must be >= 1")
 
     def to_dict(self) -> dict[str, Any]:

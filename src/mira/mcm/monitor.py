@@ -37,7 +37,7 @@ from numpy.typing import ArrayLike
 
 from mira.mcm import metrics
 from mira.mcm.band import stagnation_band
-from mira.mcm.config import MCMConfig
+from mira.mcm.config import TABLE1_DELTA_T, MCMConfig
 from mira.mcm.kde import HealthyModel, top_contributors
 from mira.mcm.records import (
     METRIC_NAMES,
@@ -137,7 +137,7 @@ class MetacognitiveMonitor:
             peg = math.nan
         else:
             dt = snap.step - self.prev_step
-            peg = metrics.d_peg(h_now, self.prev_entropy, dt if dt > 0 else c.delta_t)
+            peg = metrics.d_peg(h_now, self.prev_entropy, dt if dt > 0 else c.delta_t or TABLE1_DELTA_T)
         if snap.prev_policy_mean is None or snap.prev_policy_log_std is None:
             tpd = math.nan
         else:
@@ -296,7 +296,7 @@ class MetacognitiveMonitor:
         """
         out = []
         for i, (v, g) in enumerate(zip(vectors, returns, strict=True)):
-            step = start_step + (i + 1) * self.config.delta_t
+            step = start_step + (i + 1) * (self.config.delta_t or TABLE1_DELTA_T)
             out.append(self.diagnose_raw(v, step=step, smoothed_return=g))
         return out
 

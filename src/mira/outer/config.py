@@ -22,6 +22,22 @@ class OuterLoopConfig:
     """no-mcm: call SRR every this many cycles."""
     periodic_max: int = 5
     """no-mcm: at most this many periodic interventions (match MIRA's median trigger count)."""
+    repair: bool = True
+    """Also call SRR on evidence of a structural flaw: a task feature that, cycle after cycle, explains
+    episodic returns the program's factors cannot (:mod:`mira.shaping.attribution`). False: the monitor's
+    anomaly trigger only, as in the paper."""
+    repair_min_gain: float = 0.05
+    """Out-of-sample R² of the returns a feature must add to the program's for a cycle to count."""
+    repair_cycles: int = 3
+    """Cycles in a row with such a feature before SRR is called."""
+    repair_min_episodes: int = 20
+    """Stored episodes needed before the attribution is measured (its cross-validation needs them)."""
+    repair_max_episodes: int = 200
+    """The attribution uses at most this many of the latest stored episodes."""
+    repair_folds: int = 5
+    """Cross-validation folds of the attribution."""
+    repair_cooldown: int = 10
+    """Cycles without a structural trigger after an intervention, accepted or not."""
     band_feature: str | None = None
     """Feature whose held-out values locate a stagnation band (default: the task card's ``band_feature``)."""
     mcm: MCMConfig = field(default_factory=MCMConfig)

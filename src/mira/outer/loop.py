@@ -42,9 +42,11 @@ from mira.mcm.band import stagnation_band
 from mira.mcm.monitor import MetacognitiveMonitor
 from mira.mcm.records import METRIC_NAMES, CycleSnapshot, MCMResult, row_fields
 from mira.outer.config import OuterLoopConfig
+from mira.outer.repair import StructuralCheck
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.runio.csvlog import CsvLog
 from mira.runio.failpoints import failpoint
+from mira.shaping.attribution import ReturnAttribution
 from mira.shaping.factors import ProgramFactorSource
 from mira.shaping.source import HarsReward
 from mira.srr.hypotheses import EditSurrogate
@@ -67,7 +69,9 @@ class MiraOuterLoop:
         if config.mode not in ("full", "no-mcm", "no-srr"):
             raise ValueError(f"unknown outer-loop mode {config.mode!r}")
         self.config = config
-        self.interval = config.mcm.delta_t
+        if config.mcm.delta_t is None:
+            raise ValueError("the outer loop needs its cycle length: resolve mcm.delta_t (None = one episode) first")
+        self.interval: int = config.mcm.delta_t
         self.card = card
         self.hars = hars
         self.backend = backend
@@ -80,6 +84,7 @@ class MiraOuterLoop:
         self.prev_actor: dict[str, torch.Tensor] | None = None
         self.pending_observation: dict[str, Any] | None = None
         self.band_feature = config.band_feature or card.band_feature
+        self.structural = StructuralCheck(config, card, hars)
         self._diagnostics: CsvLog | None = None
 
     # ------------------------------------------------------------------------------------------- cycle
@@ -112,12 +117,21 @@ class MiraOuterLoop:
             smoothed_return=recent, factor_ids_changed=False,
         )
         result = self.monitor.diagnose(snapshot)
-        self._log(ctx, result)
+        # The unguided ablation gets no evidence of any kind, this included.
+        attribution = self.structural.observe() if cfg.repair and cfg.mode != "no-mcm" else None
+        self._log(ctx, result, attribution)
         self._observe_pending(result)
 
+        structural = cfg.repair and cfg.mode != "no-mcm" and self.structural.triggered
+        if structural and attribution is not None and attribution.best is not None:
+            best = attribution.best
+            shape = best.feature if best.form == "value" else f"-{best.feature}²"
+            log.info("step %d: the returns show a structural flaw: with %s the program's factors would explain "
+                     "them out of sample with R² %.3f instead of %.3f (%d cycles in a row)", ctx.step, shape,
+                     best.r2, attribution.program_r2, self.structural.streak)
         wants_srr = False
         if cfg.mode == "full":
-            wants_srr = result.trigger
+            wants_srr = result.trigger or structural
         elif cfg.mode == "no-mcm":
             wants_srr = (self.cycle + 1) % cfg.periodic_cycles == 0 and self.interventions < cfg.periodic_max
         decision = None
@@ -127,7 +141,10 @@ class MiraOuterLoop:
             log.info("step %d: the monitor triggered (S = %.3g above %.3g): %s", ctx.step, float(result.score),
                      float(result.threshold), why or "no single leading metric")
         if wants_srr and self.reframer is not None:
-            decision = self._reframe(ctx, result, rollout, keep, values[keep], attention, recent)
+            # A rejection makes the monitor harder to trigger, unless the structural check alone asked.
+            backoff_monitor = result.trigger or cfg.mode != "full" or not structural
+            decision = self._reframe(ctx, result, rollout, keep, values[keep], attention, recent, attribution,
+                                     backoff_monitor)
         self.cycle += 1
         out = {"S": float(result.score) if np.isfinite(result.score) else float("nan"),
                "trigger": float(result.trigger), "version": float(self.program.version)}
@@ -136,7 +153,8 @@ class MiraOuterLoop:
         return out
 
     def _reframe(self, ctx: CycleContext, result: MCMResult, rollout: Any, keep: np.ndarray, values: np.ndarray,
-                 attention: dict[str, float], recent: float) -> SRRDecision:
+                 attention: dict[str, float], recent: float, attribution: ReturnAttribution | None,
+                 backoff_monitor: bool) -> SRRDecision:
         assert self.reframer is not None
         guided = self.config.mode == "full"
         band = None
@@ -149,6 +167,7 @@ class MiraOuterLoop:
             gradient=ev["gradient"], contributors=ev["contributors"], recent_return=recent,
             baseline_return=float(result.baseline), stagnation_band=band, attention=attention, guided=guided,
             decomposition=self.hars.head.describe(),
+            return_attribution=None if attribution is None or not guided else attribution.as_dict(),
         )
         folder = ctx.run.interventions / f"{self.interventions:03d}-step{ctx.step}"
         self.interventions += 1
@@ -162,8 +181,13 @@ class MiraOuterLoop:
         sandbox_obs = ctx.buffer.obs[rows].numpy().astype(np.float64)
         sandbox_actions = ctx.buffer.action[rows].numpy().astype(np.float64)
         failpoint("srr.before_call")
+        def explain(program: FactorProgram) -> float:
+            return self.structural.explain(ProgramFactorSource(program, self.card))
+
         decision = self.reframer.reframe(folder, self.program, evidence, rollout.obs[keep], values,
-                                         sandbox_obs, sandbox_actions, proxy, seed=ctx.step)
+                                         sandbox_obs, sandbox_actions, proxy, seed=ctx.step,
+                                         explain=explain if attribution is not None else None)
+        self.structural.rest()
         if decision.accepted:
             old = self.program
             self.program = decision.program
@@ -175,11 +199,12 @@ class MiraOuterLoop:
             self.pending_observation = {"operators": decision.operators, "d_before": result.d.tolist(),
                                         "due_cycle": self.cycle + self.config.mcm.k_cool}
             changed = [ln for ln in code_diff(old, self.program).splitlines()
-                       if ln.startswith("+") and not ln.startswith("+++")]
+                       if ln.startswith("+") and not ln.startswith("+++") and ln[1:].strip()]
             log.info("step %d: installed program v%d (%s, %s)%s", ctx.step, self.program.version, decision.reason,
                      "+".join(decision.operators) or "edit", f": {changed[0][1:].strip()}" if changed else "")
         elif decision.backoff:
-            self.monitor.on_backoff(self.config.srr.delta_q)
+            if backoff_monitor:
+                self.monitor.on_backoff(self.config.srr.delta_q)
             log.info("step %d: backed off, program v%d kept (%s)", ctx.step, self.program.version, decision.reason)
         return decision
 
@@ -191,11 +216,18 @@ class MiraOuterLoop:
         self.surrogate.observe(pending["operators"], np.asarray(pending["d_before"]), result.d)
         self.pending_observation = None
 
-    def _log(self, ctx: CycleContext, result: MCMResult) -> None:
+    def _log(self, ctx: CycleContext, result: MCMResult, attribution: ReturnAttribution | None) -> None:
         if self._diagnostics is None:
-            self._diagnostics = CsvLog(ctx.run.path / "diagnostics.csv", [*row_fields(METRIC_NAMES), "version"])
+            fields = [*row_fields(METRIC_NAMES), "version", "returns_cv_r2", "unexplained_gain", "unexplained"]
+            self._diagnostics = CsvLog(ctx.run.path / "diagnostics.csv", fields)
             self._diagnostics.rewind(ctx.step - 1)
-        self._diagnostics.append({**result.as_row(), "version": self.program.version})
+        best = None if attribution is None else attribution.best
+        self._diagnostics.append({
+            **result.as_row(), "version": self.program.version,
+            "returns_cv_r2": "" if attribution is None else attribution.program_r2,
+            "unexplained_gain": "" if best is None else best.gain,
+            "unexplained": "" if best is None else (best.feature if best.form == "value" else f"-{best.feature}^2"),
+        })
 
     # ------------------------------------------------------------------------------------- checkpoint
     def state_dict(self) -> dict[str, Any]:
@@ -204,6 +236,7 @@ class MiraOuterLoop:
             "interventions": self.interventions,
             "program": self.program.to_json(),
             "monitor": self.monitor.state_dict(),
+            "structural": self.structural.state_dict(),
             "surrogate": self.surrogate.state_dict(),
             "prev_actor": self.prev_actor,
             "pending": self.pending_observation,
@@ -215,6 +248,7 @@ class MiraOuterLoop:
         self.interventions = state["interventions"]
         self.program = FactorProgram.from_json(state["program"])
         self.monitor.load_state_dict(state["monitor"])
+        self.structural.load_state_dict(state.get("structural", {}))
         self.surrogate.load_state_dict(state["surrogate"])
         self.prev_actor = state["prev_actor"]
         self.pending_observation = state["pending"]

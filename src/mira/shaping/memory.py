@@ -12,6 +12,7 @@ episodes; the observation statistics, the episodes and σ_R carry over, as they 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,7 @@ from mira.replay import ReplayBuffer
 from mira.rewards.episodes import EpisodeStore
 from mira.shaping.columns import FactorColumns
 from mira.shaping.config import HarsConfig
-from mira.shaping.decomposition import DecomposedReward
+from mira.shaping.decomposition import DecomposedReward, DecompositionHead
 from mira.shaping.factors import FactorSource, RunningStats
 from mira.shaping.potential import STD_FLOOR, InputSnapshot
 
@@ -81,6 +82,46 @@ class FactorMemory:
         self.decomposed.add_episode(rows, episode_return)
         return True
 
+    # ------------------------------------------------------------ per-episode sums (repair evidence)
+    def recent_episodes(self, limit: int) -> tuple[list[np.ndarray], np.ndarray]:
+        """Buffer rows and returns of the latest ``limit`` stored episodes still intact, oldest first."""
+        self.episodes.prune()
+        start = max(self.episodes.intact_start(), len(self.episodes) - limit)
+        cap = self.buffer.capacity
+        rows = [(int(self.episodes.first[i]) + np.arange(int(self.episodes.length[i]))) % cap
+                for i in range(start, len(self.episodes))]
+        return rows, self.episodes.returns[start:].astype(np.float64)
+
+    def head_sums(self, rows: list[np.ndarray], factors: FactorSource | None = None) -> np.ndarray:
+        """Per-episode sums ``[E, D]`` of the decomposition head's features: the current program's (from
+        the columns), or another program's (its factors evaluated on the stored transitions now)."""
+        flat, starts = _concat(rows)
+        if factors is None:
+            x = self.decomposed.head.features(*self.columns.numpy_rows(flat))
+        else:
+            buf = self.buffer
+            obs, nxt = buf.obs.numpy()[flat], buf.next_obs.numpy()[flat]
+            aux = factors.aux(obs, buf.action.numpy()[flat]) if factors.aux_names else np.zeros((len(flat), 0))
+            head = DecompositionHead(self.config, list(factors.phi_names), list(factors.aux_names))
+            x = head.features(factors.phi(obs), factors.phi(nxt), aux)
+        return np.add.reduceat(x, starts, axis=0)
+
+    def feature_sums(self, rows: list[np.ndarray], feature_values: Callable[[np.ndarray], dict[str, np.ndarray]]
+                     ) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, tuple[float, float]]]:
+        """Per-episode sums of every task feature at s′, as its value and as minus its square, and each
+        feature's observed range (see :mod:`mira.shaping.attribution`)."""
+        flat, starts = _concat(rows)
+        values = feature_values(self.buffer.next_obs.numpy()[flat].astype(np.float64))
+        sums: dict[str, dict[str, np.ndarray]] = {}
+        ranges: dict[str, tuple[float, float]] = {}
+        for name, v in values.items():
+            v = np.asarray(v, dtype=np.float64).reshape(-1)
+            if not np.all(np.isfinite(v)):
+                continue
+            sums[name] = {"value": np.add.reduceat(v, starts), "neg_square": np.add.reduceat(-v * v, starts)}
+            ranges[name] = (float(v.min()), float(v.max()))
+        return sums, ranges
+
     def state_dict(self) -> dict[str, Any]:
         # The columns first: that evaluates pending rows (flush points stay the same on resume).
         columns = self.columns.state_dict()
@@ -97,3 +138,9 @@ class FactorMemory:
             self.episodes.load_state_dict(state["episodes"])
             self.decomposed.head.load_state_dict(state["head"])
             self.decomposed.changed()
+
+
+def _concat(rows: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Episodes' rows end to end, and where each episode starts in them (for ``np.add.reduceat``)."""
+    lengths = np.array([len(r) for r in rows], dtype=np.int64)
+    return np.concatenate(rows).astype(np.int64), np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)

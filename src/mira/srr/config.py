@@ -27,3 +27,8 @@ class SRRConfig:
     """Admissible edit operators offered to the LLM."""
     sandbox_timeout_s: float = 15.0
     """Wall-clock bound of one candidate's sandbox check."""
+    min_r2_gain: float = 0.02
+    """A candidate also passes when it explains the episodic returns better than the current program: its
+    out-of-sample R² of the stored returns higher by at least this (:mod:`mira.shaping.attribution`). The
+    value labels of the AUC test come from the current program's decomposition, so they cannot vouch for
+    a program that expresses what the current one misses; the returns themselves can."""

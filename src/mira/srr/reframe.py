@@ -1,11 +1,13 @@
 """SRR.Reframe (Algorithm 2): evidence → hypotheses → LLM candidates → checks → decision.
 
-Each candidate passes, in order, the parser (schema and factor model), static integrity (AST
-whitelist), sandbox realizability (real states, separate process, limits it cannot lift) and proxy
-efficacy (ROC-AUC > 0.5 with permutation p < 0.05 on value-quantile labels, and J_SRR > 0). The best
-passing candidate by J_SRR is accepted; if none passes, SRR abstains and the caller backs off. A
-failing LLM is a recorded, failed intervention — never a crash. Every step is written into the
-intervention's folder as it happens.
+Each candidate passes, in order, the parser (schema and factor model), static integrity (AST whitelist),
+sandbox realizability (real states, separate process, limits it cannot lift) and proxy efficacy (ROC-AUC
+> 0.5 with permutation p < 0.05 on value-quantile labels, and J_SRR > 0) or, where the stored episodes
+are at hand, return explanation (the candidate's out-of-sample R² of the episodic returns above the
+current program's by ``min_r2_gain``: the test a structural repair can pass, see
+:mod:`mira.shaping.attribution`). The best passing candidate (by R² gain, then J_SRR) is accepted; if
+none passes, SRR abstains and the caller backs off. A failing LLM is a recorded, failed intervention —
+never a crash. Every step is written into the intervention's folder as it happens.
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ log = logging.getLogger(__name__)
 
 ProxyPotential = Callable[[FactorProgram, np.ndarray], np.ndarray]
 """``proxy(program, obs[N, obs_dim]) -> Φ̃[N]``: a candidate's PHI factors through the frozen FAB/VPM."""
+ReturnExplanation = Callable[[FactorProgram], float]
+"""``explain(program) -> R²``: out-of-sample R² of the stored episodes' returns decomposed over a program."""
 
 
 @dataclass
@@ -82,6 +86,7 @@ class Reframer:
         sandbox_actions: np.ndarray,
         proxy: ProxyPotential,
         seed: int,
+        explain: ReturnExplanation | None = None,
     ) -> SRRDecision:
         cfg = self.config
         folder.mkdir(parents=True, exist_ok=True)
@@ -114,17 +119,19 @@ class Reframer:
         direction = None
         if evidence.guided and any(evidence.gradient.values()):
             direction = np.array([evidence.gradient.get(m, 0.0) for m in METRICS])
-        shortlist: list[tuple[float, Candidate]] = []
+        base_r2 = _safe_r2(explain, program) if explain is not None else None
+        shortlist: list[tuple[tuple[float, float], Candidate]] = []
         for cand in candidates:
             passed, j_srr = self._validate(cand, program, eval_obs, sandbox_obs, sandbox_actions, eval_values,
-                                           proxy,
-                                           direction, seed)
+                                           proxy, direction, seed, explain, base_r2)
+            gain = cand.verdicts.get("returns", {}).get("gain")
             if passed and j_srr is not None:
-                shortlist.append((j_srr, cand))
+                shortlist.append(((gain if gain is not None and np.isfinite(gain) else -np.inf, j_srr), cand))
             eff = cand.verdicts.get("efficacy")
             if eff:  # it reached the proxy-efficacy check: its figures say why it passed or not
-                verdict = (f"AUC {eff['auc']:.3f}, p {eff['auc_p']:.3g}, J_SRR {eff['j_srr']:.3f}: "
-                           + ("passed every check" if passed else "rejected"))
+                r2 = "" if gain is None else f", return R² {gain:+.3f}"
+                verdict = (f"AUC {eff['auc']:.3f}, p {eff['auc_p']:.3g}, J_SRR {eff['j_srr']:.3f}{r2}: "
+                           + ("passed" if passed else "rejected"))
             else:
                 verdict = cand.verdicts.get("rejected", cand.error or "rejected")
             log.info("step %d: candidate %d [%s]: %s", evidence.step, cand.index, "+".join(cand.operators) or "?",
@@ -134,7 +141,7 @@ class Reframer:
         if not shortlist:
             reasons = "; ".join(c.error or c.verdicts.get("rejected", "rejected") for c in candidates)
             return self._finish(folder, SRRDecision(False, program, f"no candidate passed: {reasons}", backoff=True))
-        j_best, best = max(shortlist, key=lambda t: t[0])
+        (_, j_best), best = max(shortlist, key=lambda t: t[0])
         assert best.program is not None
         atomic_write_text(folder / "accepted.diff", code_diff(program, best.program))
         return self._finish(folder, SRRDecision(True, best.program, f"accepted candidate {best.index}", backoff=False,
@@ -152,6 +159,8 @@ class Reframer:
         proxy: ProxyPotential,
         direction: np.ndarray | None,
         seed: int,
+        explain: ReturnExplanation | None = None,
+        base_r2: float | None = None,
     ) -> tuple[bool, float | None]:
         cfg = self.config
         if cand.program is None:
@@ -187,10 +196,19 @@ class Reframer:
         cand.verdicts["efficacy"] = {**eff.as_dict(), "j_srr": j_srr, "complexity": comp,
                                      "predicted_delta_d": predicted}
         ok = eff.auc > cfg.min_auc and eff.auc_p < cfg.max_p_value and j_srr > 0
-        if not ok:
+        explains = False
+        if explain is not None and base_r2 is not None and np.isfinite(base_r2):
+            r2 = _safe_r2(explain, cand.program)
+            gain = r2 - base_r2
+            explains = bool(np.isfinite(gain) and gain >= cfg.min_r2_gain)
+            cand.verdicts["returns"] = {"cv_r2": r2, "current_cv_r2": base_r2, "gain": gain, "passed": explains}
+        if not (ok or explains):
             cand.verdicts["rejected"] = (f"proxy efficacy: AUC {eff.auc:.3f} (p {eff.auc_p:.3g}), J_SRR {j_srr:.3f} "
-                                         f"(needs AUC > {cfg.min_auc}, p < {cfg.max_p_value}, J_SRR > 0)")
-        return ok, j_srr
+                                         f"(needs AUC > {cfg.min_auc}, p < {cfg.max_p_value}, J_SRR > 0)"
+                                         + ("" if "returns" not in cand.verdicts else
+                                            f"; return R² gain {cand.verdicts['returns']['gain']:+.3f} "
+                                            f"(or at least {cfg.min_r2_gain})"))
+        return ok or explains, j_srr
 
     @staticmethod
     def _candidate_record(c: Candidate) -> dict[str, Any]:
@@ -202,3 +220,12 @@ class Reframer:
         decision.folder = str(folder)
         atomic_write_json(folder / "decision.json", decision.as_dict())
         return decision
+
+
+def _safe_r2(explain: ReturnExplanation, program: FactorProgram) -> float:
+    """``explain(program)``, NaN when it fails: a measurement failure rejects a candidate, never the run."""
+    try:
+        return float(explain(program))
+    except Exception:  # the program passed the sandbox; anything left is the measurement's problem
+        log.exception("SRR: measuring a program's return explanation failed")
+        return float("nan")
