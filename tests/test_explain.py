@@ -25,12 +25,12 @@ def _run(tmp_path: Path, triggers: list[int], versions: int) -> Path:
 
 def test_one_trigger_is_singular_and_the_final_version_is_named(tmp_path: Path) -> None:
     text = explain(_run(tmp_path, [10000], versions=2))
-    assert "4 cycles, 1 trigger (at step 10000)." in text
+    assert "4 cycles, 1 anomaly trigger (at step 10000)." in text
     assert "ended on program v1 (versions: 0, 1)" in text
     assert "r_vel +0.95 (100%)" in text and "R² of returns 0.990" in text
 
 
 def test_several_triggers_are_plural(tmp_path: Path) -> None:
     text = explain(_run(tmp_path, [10000, 15000], versions=1))
-    assert "2 triggers (at steps 10000, 15000)." in text
+    assert "2 anomaly triggers (at steps 10000, 15000)." in text
     assert "ended on program" not in text

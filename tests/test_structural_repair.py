@@ -14,6 +14,7 @@ import pytest
 
 from mira.cli import main
 from mira.engineer.offline import OfflineEngineer
+from mira.explain import explain
 from mira.factors.checker import check_program
 from mira.factors.program import FactorProgram, load_program
 from mira.factors.sandbox import sandbox_check
@@ -133,3 +134,7 @@ def test_mira_repairs_a_program_without_progress(tmp_path: Path, fast_train_args
     evidence = json.loads(next((run / "interventions").glob("*/evidence.json")).read_text())
     assert evidence["return_attribution"]["feature_gains"][0]["feature"] == "x_velocity"
     assert rows[-1]["version"] == "1"
+    story = explain(run)  # which flaw was diagnosed, which edit was installed, the return around it
+    assert "the returns show a structural flaw" in story and "with x_velocity added" in story
+    assert "accepted -> program v1" in story and "return:" in story
+    assert "Return decomposition of program v1" in story and "r_x_velocity" in story

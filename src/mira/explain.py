@@ -80,13 +80,29 @@ def explain(run_dir: str | Path) -> str:
         if len(programs) > 1:
             versions = ", ".join(p.stem.lstrip("v").lstrip("0") or "0" for p in programs)
             lines.append(f"The run ended on program v{int(programs[-1].stem[1:])} (versions: {versions}).")
-    lines += _decomposition(read_csv(run / "train.csv"))
+    latest = _load(run / "decomposition.json")
+    if latest and latest.get("episodes"):
+        shares = latest.get("shares", {})
+        parts = ", ".join(f"{n} {w:+.3g}" + (f" ({100 * shares[n]:.0f}%)" if n in shares else "")
+                          for n, w in latest["weights"].items())
+        lines.append(f"Return decomposition of program v{latest['version']} at step {latest['step']} (r̂ = Σ w·factor "
+                     f"+ bias fitted to episodic returns; weight and share of r̂): {parts}; R² of returns "
+                     f"{float(latest['r2']):.3f}.")
+    else:
+        lines += _decomposition(read_csv(run / "train.csv"))
     diag = read_csv(run / "diagnostics.csv")
     if diag:
         triggers = [r for r in diag if r.get("trigger") == "1"]
-        lines.append(f"Monitor: {_count(len(diag), 'cycle')}, {_count(len(triggers), 'trigger')}"
+        lines.append(f"Monitor: {_count(len(diag), 'cycle')}, {_count(len(triggers), 'anomaly trigger')}"
                      + (f" (at step{'s' if len(triggers) > 1 else ''} {', '.join(r['step'] for r in triggers)})."
                         if triggers else "."))
+        measured = [r for r in diag if r.get("returns_cv_r2")]
+        if measured:
+            last = measured[-1]
+            lines.append(f"Return attribution at step {last['step']}: the program's factors explain the episodic "
+                         f"returns out of sample with R² {float(last['returns_cv_r2']):.2f}"
+                         + (f"; the most a task feature adds is {float(last['unexplained_gain']):+.2f} "
+                            f"({last['unexplained']})." if last.get("unexplained") else "."))
     interventions = sorted((run / "interventions").glob("*/decision.json"))
     if not interventions and (run / "interventions").exists():
         lines.append("No intervention was made.")
@@ -97,7 +113,16 @@ def explain(run_dir: str | Path) -> str:
         step = int(evidence.get("step", 0))
         lines.append("")
         lines.append(f"Intervention {folder.name} at step {step}:")
-        if evidence.get("guided", True) and evidence.get("contributors"):
+        att = evidence.get("return_attribution") or {}
+        gains = att.get("feature_gains") or []
+        if evidence.get("cause") == "structural" and gains:
+            top = gains[0]
+            shape = top["feature"] if top["form"] == "value" else f"-{top['feature']}²"
+            lines.append(f"  why: the returns show a structural flaw: the program's factors explain the episodic "
+                         f"returns out of sample with R² {att['program_cv_r2']:.2f}, with {shape} added "
+                         f"{top['cv_r2']:.2f} ({top['gain']:+.2f}).")
+        elif evidence.get("cause", "anomaly") == "anomaly" and evidence.get("guided", True) \
+                and evidence.get("contributors"):
             why = "; ".join(f"{c['reading']} ({str(c['metric']).upper()} = {c['value']:.2f})"
                             for c in evidence["contributors"])
             score = evidence.get("score")
@@ -117,7 +142,10 @@ def explain(run_dir: str | Path) -> str:
                            f"J_SRR {eff['j_srr']:.3f}")
             else:
                 figures = "not measured"
-            verdict = verdicts.get("rejected") or "passed every check"
+            returns = verdicts.get("returns")
+            if returns:
+                figures += f", return R² {returns['cv_r2']:.2f} ({returns['gain']:+.2f})"
+            verdict = verdicts.get("rejected") or "passed"
             lines.append(f"  candidate {c['index']} [{ops}]: {figures}; {verdict}")
         if decision.get("accepted"):
             lines.append(f"  decision: accepted -> program v{decision.get('version')} ({decision.get('reason')}).")

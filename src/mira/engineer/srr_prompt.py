@@ -68,6 +68,9 @@ class Evidence:
     decomposition: dict[str, Any] | None = None
     """HARS's return decomposition (section 3's parametric alignment): per-feature weights and shares
     of r̂, the fit's R² and per-step residual (:meth:`DecompositionHead.describe`); None when absent."""
+    cause: str = "anomaly"
+    """Why SRR was called: ``anomaly`` (the monitor triggered), ``structural`` (the returns show a
+    structural flaw, :mod:`mira.outer.repair`) or ``periodic`` (the no-MCM ablation's schedule)."""
     return_attribution: dict[str, Any] | None = None
     """Which task features explain returns the program cannot (:meth:`ReturnAttribution.as_dict`): the
     program's out-of-sample R² of the returns and each feature's gain; None when not measured."""

@@ -121,6 +121,9 @@ class MiraOuterLoop:
         attribution = self.structural.observe() if cfg.repair and cfg.mode != "no-mcm" else None
         self._log(ctx, result, attribution)
         self._observe_pending(result)
+        # The head's current fit, whatever program it is over (train.csv's columns are the first program's).
+        atomic_write_json(ctx.run.path / "decomposition.json",
+                          {"step": ctx.step, "version": self.program.version, **self.hars.head.describe()})
 
         structural = cfg.repair and cfg.mode != "no-mcm" and self.structural.triggered
         if structural and attribution is not None and attribution.best is not None:
@@ -143,8 +146,9 @@ class MiraOuterLoop:
         if wants_srr and self.reframer is not None:
             # A rejection makes the monitor harder to trigger, unless the structural check alone asked.
             backoff_monitor = result.trigger or cfg.mode != "full" or not structural
+            cause = "anomaly" if result.trigger else "structural" if structural else "periodic"
             decision = self._reframe(ctx, result, rollout, keep, values[keep], attention, recent, attribution,
-                                     backoff_monitor)
+                                     backoff_monitor, cause)
         self.cycle += 1
         out = {"S": float(result.score) if np.isfinite(result.score) else float("nan"),
                "trigger": float(result.trigger), "version": float(self.program.version)}
@@ -154,7 +158,7 @@ class MiraOuterLoop:
 
     def _reframe(self, ctx: CycleContext, result: MCMResult, rollout: Any, keep: np.ndarray, values: np.ndarray,
                  attention: dict[str, float], recent: float, attribution: ReturnAttribution | None,
-                 backoff_monitor: bool) -> SRRDecision:
+                 backoff_monitor: bool, cause: str) -> SRRDecision:
         assert self.reframer is not None
         guided = self.config.mode == "full"
         band = None
@@ -167,7 +171,7 @@ class MiraOuterLoop:
             gradient=ev["gradient"], contributors=ev["contributors"], recent_return=recent,
             baseline_return=float(result.baseline), stagnation_band=band, attention=attention, guided=guided,
             decomposition=self.hars.head.describe(),
-            return_attribution=None if attribution is None or not guided else attribution.as_dict(),
+            return_attribution=None if attribution is None or not guided else attribution.as_dict(), cause=cause,
         )
         folder = ctx.run.interventions / f"{self.interventions:03d}-step{ctx.step}"
         self.interventions += 1
