@@ -137,6 +137,43 @@ def table(out: Path, task: str, algo: str, budget: int, methods: list[str], head
     return "\n".join(lines)
 
 
+def plot(out: Path, task: str, algo: str, methods: list[str]) -> Path | None:
+    """One panel per program: each method's mean evaluation curve over seeds, and a tick at every step
+    where a ``mira`` run installed a new program (``<out>/<task>/curves.png``)."""
+    from matplotlib.ticker import FuncFormatter
+
+    from mira.experiments.plots import Curve, _figure, band, method_colour, steps_label
+
+    root = out / task
+    names = [n for n in [GOOD, *(e["name"] for e in flaws(task))] if (root / n).is_dir()]
+    if not names:
+        return None
+    fig, canvas = _figure(5.0 * min(len(names), 3), 3.4 * ((len(names) + 2) // 3))
+    for k, name in enumerate(names):
+        ax = fig.add_subplot((len(names) + 2) // 3, min(len(names), 3), k + 1)
+        for i, method in enumerate(methods):
+            curves = [Curve([float(r["step"]) for r in rows], [float(r["return_mean"]) for r in rows])
+                      for rows in (read_csv(f) for f in sorted((root / name).glob(f"{method}-{algo}-s*/eval.csv")))
+                      if rows]
+            if not curves:
+                continue
+            steps, mean, _, count = band(curves)
+            ax.plot(steps, mean, color=method_colour(method, i), lw=1.6, label=f"{method} ({max(count)} s)")
+        for decision in sorted((root / name).glob(f"mira-{algo}-s*/interventions/*/decision.json")):
+            if json.loads(decision.read_text()).get("accepted"):
+                step = float(decision.parent.name.rpartition("-step")[2])
+                ax.axvline(step, color="#2ca02c", lw=0.8, ls="--")
+        ax.set_title(name, fontsize=10)
+        ax.xaxis.set_major_formatter(FuncFormatter(steps_label))
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, frameon=False)
+    fig.suptitle(f"{task}: evaluation return from flawed initial programs (dashed: mira installed a program)")
+    fig.tight_layout()
+    path = root / "curves.png"
+    canvas.print_png(str(path))
+    return path
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="halfcheetah")
@@ -181,6 +218,9 @@ def main() -> None:
     print(text)
     (args.out / args.task).mkdir(parents=True, exist_ok=True)
     (args.out / args.task / "table.md").write_text(text + "\n")
+    figure = plot(args.out, args.task, args.algo, methods)
+    if figure is not None:
+        print(f"curves: {figure}")
 
 
 if __name__ == "__main__":
