@@ -189,3 +189,15 @@ def test_the_documented_example_cards_load_and_read_what_they_say(tmp_path: Path
                 kind, idx = feat.source.split(":")
                 expected = (base.data.qpos if kind == "qpos" else base.data.qvel)[int(idx)]  # type: ignore[attr-defined]
                 assert values[feat.name][0] == pytest.approx(expected), (path.name, feat.name)
+
+
+def test_mujoco_deprecation_noise_is_filtered_and_other_warnings_are_not(capfd: pytest.CaptureFixture[str]) -> None:
+    import mujoco
+
+    make_env(load_task("halfcheetah")).close()
+    handler = mujoco.get_mju_user_warning()
+    assert handler is not None
+    handler("compiler attribute 'settotalmass' is deprecated and will be removed")
+    handler("Nan, Inf or huge value in QACC at DOF 0")
+    err = capfd.readouterr().err
+    assert "settotalmass" not in err and "WARNING: Nan, Inf or huge value in QACC" in err

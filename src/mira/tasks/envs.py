@@ -8,6 +8,8 @@ rewards, the last step's own reward included. The dense reward of each step stay
 
 from __future__ import annotations
 
+import sys
+from functools import cache
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -52,6 +54,32 @@ class EpisodicRewardWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.n
         self._episode_sum = float(value)
 
 
+QUIET_MUJOCO_WARNINGS = ("compiler attribute 'settotalmass' is deprecated",)
+"""MuJoCo warnings that say nothing about the user's run: Gymnasium's own model files still use an
+attribute MuJoCo 3.3 deprecated, and every environment built would print it."""
+
+
+@cache
+def _filter_mujoco_warnings() -> None:
+    """Drop exactly the :data:`QUIET_MUJOCO_WARNINGS` (by message prefix); print every other MuJoCo
+    warning as MuJoCo itself does. Installed once, before the first environment is built."""
+    try:
+        import mujoco
+    except ImportError:  # a task without MuJoCo: nothing to filter
+        return
+    previous = mujoco.get_mju_user_warning()
+
+    def on_warning(message: str) -> None:
+        if message.startswith(QUIET_MUJOCO_WARNINGS):
+            return
+        if previous is not None:
+            previous(message)
+        else:
+            print(f"WARNING: {message}\n", file=sys.stderr)
+
+    mujoco.set_mju_user_warning(on_warning)
+
+
 def action_dim(card: TaskCard) -> int:
     """Size of the task's action vector (builds the environment once to read it)."""
     env = make_env(card)
@@ -67,6 +95,7 @@ def make_env(card: TaskCard, seed: int | None = None, max_episode_steps: int | N
     The card is bound to the observation size, so a feature index outside the observation is
     reported here, before any training.
     """
+    _filter_mujoco_warnings()
     try:
         kwargs = dict(card.env_kwargs)
         if max_episode_steps is not None:
