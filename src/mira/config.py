@@ -47,8 +47,10 @@ class TrainConfig:
     """Override the environment's time limit (None: the environment's own, e.g. 1000)."""
     device: str = "auto"
     """``auto`` (CUDA when present), ``cpu`` or ``cuda``."""
-    threads: int | None = None
-    """PyTorch intra-op threads (None: PyTorch's default)."""
+    threads: int | None = 1
+    """PyTorch intra-op threads of the run. 1 (default): runs that share a machine, as seeds usually do,
+    do not slow each other down by oversubscribing its cores, and a run on a free core is about as fast;
+    more helps one run alone on an idle machine. None: PyTorch's default (one per core)."""
     agent: AgentConfig = field(default_factory=AgentConfig)
     """Agent hyperparameters."""
     llm: LLMConfig = field(default_factory=LLMConfig)

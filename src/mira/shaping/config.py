@@ -70,9 +70,10 @@ class HarsConfig:
     train_in_background: bool | None = None
     """Run each training step of (ϕ, φ, ψ) and each cycle's no-grad shaping pass on a second thread
     beside the agent's updates. The step lands at the next training update either way, so the run is
-    the same computation, bit for bit, whatever this is. None (default): on when the process may use
-    more cores than PyTorch's intra-op threads (otherwise the intra-op pool would wait for the core
-    the thread holds); False: everything on the caller's thread."""
+    the same computation, bit for bit, whatever this is. None (default): on when a core is free for it
+    (the process may use more cores than PyTorch's intra-op threads, and the load average leaves one
+    idle; otherwise the thread would wait for a core, or take one from another run); False: everything
+    on the caller's thread."""
     vpm_hidden: int = 128
     """Width of the two hidden layers of the Value Potential Mapping MLP (Table 1)."""
     vpm_state_proj: bool = False

@@ -72,12 +72,18 @@ def _log_fields(config: HarsConfig, factors: FactorSource) -> tuple[str, ...]:
 
 
 def _has_spare_core() -> bool:
-    """Whether this process may run on more cores than PyTorch's intra-op threads use."""
+    """Whether a core is free for a second thread: this process may run on more cores than PyTorch's
+    intra-op threads use, and the machine's load (other runs included) leaves one idle."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
-    return cores > torch.get_num_threads()
+    try:
+        busy = os.getloadavg()[0]
+    except OSError:  # no load average on this platform: judge by the affinity alone
+        busy = 0.0
+    # Half a core of slack: the load average lags, and this process has barely started.
+    return cores > torch.get_num_threads() and cores - busy - torch.get_num_threads() >= 0.5
 
 
 @torch.no_grad()
