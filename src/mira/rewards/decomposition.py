@@ -63,8 +63,9 @@ class EpisodeSumRegression:
             self.head = (self.head + 1) % self.max_episodes
         self.sums[slot], self.returns[slot], self.lengths[slot] = summed, float(episode_return), float(length)
 
-    def fit(self) -> np.ndarray:
-        """Solve the ridge problem on every stored episode; returns θ̂ (float64, also kept in ``theta``)."""
+    def fit(self, nonneg: np.ndarray | None = None) -> np.ndarray:
+        """Solve the ridge problem on every stored episode; returns θ̂ (float64, also kept in ``theta``).
+        With ``nonneg`` (a boolean mask over the features) those weights are constrained to be ≥ 0."""
         n = self.count
         if n == 0:
             return self.theta
@@ -75,7 +76,7 @@ class EpisodeSumRegression:
         a_reg = a + np.diag(self.ridge * diag / n + jitter)
         b = x.T @ r
         try:
-            theta = np.linalg.solve(a_reg, b)
+            theta = np.linalg.solve(a_reg, b) if nonneg is None else _constrained(a_reg, b, nonneg)
         except np.linalg.LinAlgError:
             theta = np.linalg.lstsq(a_reg, b, rcond=None)[0]
         if not np.all(np.isfinite(theta)):
@@ -105,3 +106,19 @@ class EpisodeSumRegression:
         self.theta = np.asarray(state["theta"], dtype=np.float64).reshape(self.dim).copy()
         self.loss = float(state["loss"])
         self.r2 = float(state.get("r2", float("nan")))
+
+
+def _constrained(a_reg: np.ndarray, b: np.ndarray, nonneg: np.ndarray) -> np.ndarray:
+    """argmin ``θᵀAθ − 2bᵀθ`` subject to ``θ[nonneg] ≥ 0``: with ``A = LLᵀ`` this is the least-squares
+    problem ``‖Lᵀθ − L⁻¹b‖²``, which NNLS solves once each free weight is split into a positive and a
+    negative part."""
+    from scipy.optimize import nnls
+
+    chol = np.linalg.cholesky(a_reg)
+    m, y = chol.T, np.linalg.solve(chol, b)
+    free = ~np.asarray(nonneg, dtype=bool)
+    cols = np.concatenate([m, -m[:, free]], axis=1)
+    z, _ = nnls(cols, y, maxiter=50 * cols.shape[1])
+    theta = z[: m.shape[1]].copy()
+    theta[free] -= z[m.shape[1]:]
+    return theta

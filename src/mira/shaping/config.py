@@ -30,6 +30,9 @@ class HarsConfig:
     earned into), ``state`` (s) or ``both``. AUX factors are always read at (s, a)."""
     decompose_ridge: float = 1.0
     """Ridge weight of the head's episode-sum regression, in standardised units (one pseudo-episode)."""
+    decompose_nonneg: bool = False
+    """Constrain the head's factor weights to w ≥ 0 (the bias stays free): a weight can scale a factor or
+    drop it, never turn what the program declares a penalty into a bonus. Off: unconstrained ridge."""
     decompose_min_episodes: int = 2
     """Finished episodes needed before the head's first fit (r̂ is 0 until then)."""
     decompose_max_episodes: int = 5_000

@@ -87,7 +87,8 @@ class DecompositionHead:
         """An episode's per-step features ``[T, D]`` and its return; refits once enough are stored."""
         self.regression.add(x.sum(axis=0), episode_return, float(x.shape[0]))
         if self.regression.count >= self.config.decompose_min_episodes:
-            self.weights = self.regression.fit().copy()
+            nonneg = np.arange(len(self.names)) < len(self.names) - 1 if self.config.decompose_nonneg else None
+            self.weights = self.regression.fit(nonneg).copy()
             contrib = np.abs(x[:, :-1] * self.weights[None, :-1]).mean(axis=0)
             total = float(contrib.sum())
             self.shares = contrib / total if total > 0 else np.zeros_like(contrib)
