@@ -59,6 +59,22 @@ def test_episode_sum_regression_recovers_a_linear_per_step_reward() -> None:
     assert reg.r2 == pytest.approx(1.0, abs=1e-8)
 
 
+def test_nonneg_fit_never_turns_a_factor_around_and_keeps_the_bias_free() -> None:
+    """Returns that reward ``2·a − b`` over factors declared as ``a`` and ``b``: unconstrained, the fit
+    gives ``b`` weight −1; constrained (the factors' weights ≥ 0) it drops ``b`` and keeps ``a`` and a
+    negative bias, as the mask allows."""
+    rng = np.random.default_rng(3)
+    reg = EpisodeSumRegression(3, ridge=1e-3)
+    for _ in range(200):
+        x = rng.normal(1.0, 1.0, size=(30, 2))
+        reg.add(np.r_[x.sum(axis=0), 30.0], float((2.0 * x[:, 0] - x[:, 1] - 0.5).sum()), 30.0)
+    free = reg.fit()
+    assert free[1] == pytest.approx(-1.0, abs=1e-3)
+    theta = reg.fit(np.array([True, True, False]))
+    assert theta[0] > 1.5 and theta[1] == 0.0 and theta[2] < -0.5
+    assert reg.fit(np.zeros(3, dtype=bool)) == pytest.approx(free)  # no constraint: the ridge solution
+
+
 def test_head_recovers_the_per_step_reward_from_episode_sums_without_reading_the_dense_reward() -> None:
     src, buf = make_hars(_factors(), obs_dim=OBS, act_dim=ACT, capacity=8_000,
                          config=HarsConfig(decompose_ridge=1e-6, shaping_weight=0.0))
