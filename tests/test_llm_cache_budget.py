@@ -188,7 +188,7 @@ def test_audit_log_records_every_exchange_and_parse_result(tmp_path: Path) -> No
     assert [r["cached"] for r in records] == [False, True, False]
     assert records[0]["parse_result"] == {"ok": True, "factors": 4}
     assert records[0]["reply"] == first.content and records[0]["messages"] == req.messages
-    assert records[0]["purpose"] == "lsfs" and records[0]["model"] == "rule-based-engineer-v1"
+    assert records[0]["purpose"] == "lsfs" and records[0]["model"] == "rule-based-engineer-v2"
     assert records[2]["error"]["type"] == "LLMRequestRejectedError" and records[2]["reply"] is None
     for field in ("timestamp", "backend", "latency_s", "usage", "attempts", "context"):
         assert field in records[0]

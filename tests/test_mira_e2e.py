@@ -79,3 +79,16 @@ def test_interventions_are_reported_as_they_happen(tmp_path: Path, fast_train_ar
     decisions = [ln for ln in out.splitlines() if "installed program v" in ln or "backed off, program v" in ln]
     assert candidates and all("step " in ln for ln in candidates)
     assert len(decisions) == len(sorted((run / "interventions").glob("*/decision.json"))) >= 1
+
+
+@pytest.mark.slow
+def test_mira_runs_on_hopper_a_terminating_task(tmp_path: Path, fast_train_args: list[str]) -> None:
+    """A built-in task whose episodes end early: the offline program from the card's declarations, the
+    outer loop's cycles and the evaluations all run."""
+    run = tmp_path / "run"
+    code = main(["train", "--task", "hopper", "--method", "mira", "--steps", "1200", "--seed", "0",
+                 "--out", str(run), *fast_train_args, *FAST_MIRA])
+    assert code == 0
+    program = json.loads((run / "programs" / "v000.json").read_text())
+    assert {f["name"] for f in program["factors"]} == {"r_torso_height", "r_torso_angle", "r_x_velocity", "r_ctrl"}
+    assert len(read_csv(run / "diagnostics.csv")) >= 2 and read_csv(run / "eval.csv")[-1]["step"] == "1200"

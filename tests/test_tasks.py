@@ -133,6 +133,10 @@ def test_unknown_task_name() -> None:
         (lambda t: t.replace('name = "pendulum"', 'name = "pendulum\n'), r"p\.toml: does not parse as TOML: .*line 2"),
         (lambda t: "", r"p\.toml: the file is empty"),
         (lambda t: "  \n", r"p\.toml: the file is empty"),
+        (lambda t: t.replace('units = "rad"', 'units = "rad"\nbetter = "up"'),
+         r"p\.toml, features\[0\]: feature 'angle' key 'better' must be one of higher, lower, closer, not 'up'"),
+        (lambda t: t.replace('units = "rad"', 'units = "rad"\nbetter = "higher"\ntarget = 1.0'),
+         r"p\.toml, features\[0\]: feature 'angle' key 'target' must be a number, and only with better"),
     ],
 )
 def test_bad_cards_name_the_file_the_key_and_the_line(tmp_path: Path, edit: object, message: str) -> None:

@@ -12,6 +12,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from mira.engineer.backends import make_backend
 from mira.engineer.lsfs_prompt import build_lsfs_messages, parse_program_reply
 from mira.errors import MiraError
@@ -38,11 +40,30 @@ def backend_from_config(cfg: LLMConfig, default_cache: Path | None, audit_dir: P
     )
 
 
+def observed_ranges(card: TaskCard) -> dict[str, list[float]]:
+    """Each feature's [min, max] over the sandbox's real states (a random policy's rollouts): what the
+    offline engineer's range hints are computed from. Empty when the environment cannot be built."""
+    from mira.factors.sandbox import collect_states
+
+    try:
+        obs, _ = collect_states(card)
+    except Exception:  # the card's environment is checked elsewhere; without states there are no ranges
+        return {}
+    out = {}
+    for name, values in card.feature_values(obs).items():
+        v = np.asarray(values, dtype=np.float64)
+        if v.size and np.all(np.isfinite(v)):
+            out[name] = [float(v.min()), float(v.max())]
+    return out
+
+
 def lsfs_request(card: TaskCard, action_dim: int, purpose: Purpose = "lsfs") -> LLMRequest:
+    ranges = observed_ranges(card)
     messages = build_lsfs_messages(card, action_dim)
     context = {
         "task": card.name,
-        "features": [{"name": f.name, "units": f.units, "doc": f.doc} for f in card.features],
+        "features": [{"name": f.name, "units": f.units, "doc": f.doc, "better": f.better, "target": f.target,
+                      "range": ranges.get(f.name)} for f in card.features],
         "action_dim": action_dim,
         "description": card.description,
     }

@@ -3,7 +3,7 @@
 MIRA must run out of the box on a machine without an API key, and its tests and case studies must
 be reproducible bit for bit; so the default engineer is a rule engine that answers from the
 structured facts in ``request.context`` (it cannot read the prose of the messages). It says what it
-is everywhere: ``name`` "offline", ``model`` "rule-based-engineer-v1", and an ``"engineer"`` field
+is everywhere: ``name`` "offline", ``model`` "rule-based-engineer-v2", and an ``"engineer"`` field
 in every reply stating it is a rule-based engineer, not an LLM.
 
 * ``lsfs`` (and ``lare``, which asks for the same kind of factor program): see ``offline_lsfs``.
@@ -23,7 +23,7 @@ from mira.engineer.offline_lsfs import synthesize
 from mira.engineer.offline_srr import propose
 from mira.llm.base import LLMReply, LLMRequest, LLMRequestRejectedError
 
-OFFLINE_MODEL = "rule-based-engineer-v1"
+OFFLINE_MODEL = "rule-based-engineer-v2"
 
 
 class OfflineEngineer:

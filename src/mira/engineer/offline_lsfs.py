@@ -40,6 +40,11 @@ class CardFeature:
     name: str
     units: str
     doc: str
+    better: str | None = None
+    """The card's declared preference: ``higher``, ``lower`` or ``closer`` (to ``target``)."""
+    target: float = 0.0
+    range: tuple[float, float] | None = None
+    """[min, max] over the sandbox's real states, when the request carries it."""
 
 
 def parse_features(raw: Any) -> list[CardFeature]:
@@ -57,8 +62,48 @@ def parse_features(raw: Any) -> list[CardFeature]:
         name = item["name"]
         if not name.isidentifier() or name == "obs":
             continue
-        out.append(CardFeature(name, str(item.get("units") or ""), str(item.get("doc") or "")))
+        better = item.get("better") if item.get("better") in ("higher", "lower", "closer") else None
+        target = item.get("target")
+        rng = item.get("range")
+        bounds = None
+        if isinstance(rng, list | tuple) and len(rng) == 2 and all(isinstance(v, int | float) for v in rng):
+            bounds = (float(min(rng)), float(max(rng)))
+        out.append(CardFeature(name, str(item.get("units") or ""), str(item.get("doc") or ""), better,
+                               float(target) if isinstance(target, int | float) else 0.0, bounds))
     return out
+
+
+def _hint(lo: float, hi: float) -> str:
+    """A range hint around observed values: a policy that learns goes beyond a random one's states, so the
+    observed span is widened by half of itself on each side."""
+    pad = 0.5 * max(hi - lo, 1e-3)
+    return format_range(float(f"{lo - pad:.3g}"), float(f"{hi + pad:.3g}"))
+
+
+def _square_hint(features: list[CardFeature], coef: float, bound: float) -> str:
+    """Range hint of ``-coef · Σ f²``: from the observed ranges (widened), else ``bound`` per term."""
+    worst = sum(max(f.range[0] ** 2, f.range[1] ** 2) * 2.25 if f.range else bound for f in features)
+    return format_range(float(f"{-coef * worst:.3g}"), 0.0)
+
+
+def declared_factor(f: CardFeature) -> dict[str, Any]:
+    """The factor a declared preference asks for: ``s.f`` (higher), ``-s.f`` (lower) or ``-(s.f - t)²``
+    (closer to t); its range hint from the feature's observed range."""
+    lo, hi = f.range if f.range is not None else (-1.0, 1.0)
+    if f.better == "higher":
+        expr, hint, units = f"s.{f.name}", _hint(lo, hi), f.units or "1"
+    elif f.better == "lower":
+        expr, hint, units = f"-1.0 * s.{f.name}", _hint(-hi, -lo), f.units or "1"
+    else:
+        t = f.target
+        dev = f"s.{f.name}" if t == 0 else f"(s.{f.name} - {num(t)})"
+        worst = max((lo - t) ** 2, (hi - t) ** 2)
+        expr, hint = f"-1.0 * {dev} ** 2", format_range(float(f"{-2.25 * worst:.3g}"), 0.0)
+        units = f"({f.units})^2" if f.units else "1"
+    factor = make_factor(f"r_{f.name}", "PHI", expr, doc=f"{f.doc or f.name} (the card: better {f.better}"
+                         + (f" to {f.target:g}" if f.better == "closer" else "") + ")", units=units, range_hint=hint)
+    factor["polarity"] = "reward" if f.better == "higher" else "penalty"
+    return factor
 
 
 def _has(features: list[CardFeature], *names: str) -> bool:
@@ -191,12 +236,34 @@ def _is_height_task(task: str, description: str) -> bool:
     )
 
 
-def generic_program(features: list[CardFeature], action_dim: int, task: str, description: str) -> list[dict]:
-    """Progress, posture, stability and effort factors matched from the card's features."""
+def generic_program(features: list[CardFeature], action_dim: int, task: str, description: str
+                    ) -> tuple[list[dict], list[str]]:
+    """The factors and the rationale's lines for any card.
+
+    A feature whose card entry declares ``better`` gets the factor that preference asks for, and when any
+    does, the undeclared ones are left out. A card that declares none is matched to roles by name and
+    units only (progress: the velocity along the direction the
+    description names, or the height when the task is to rise; posture: angles in rad, as a squared
+    penalty; stability: angular rates, as a squared penalty); what none of that covers is listed in the
+    rationale as unused, with the reason. No constant factor is written: a per-step constant (a survival
+    bonus) is what the decomposition's bias already fits.
+    """
     desc = description.lower()
     factors: list[dict[str, Any]] = []
     used: set[str] = set()
-    height = _height_feature(features)
+    notes: list[str] = []
+    for f in features:
+        if f.better is not None:
+            factors.append(declared_factor(f))
+            used.add(f.name)
+            notes.append(f"{f.name}: r_{f.name}, as the card declares (better {f.better}).")
+    if used:  # the card says which features matter and how: the others are left out, not guessed
+        if action_dim > 0:
+            factors.append(_ctrl(action_dim))
+        notes += [f"{f.name}: not used; the card declares no preference for it (its key 'better')."
+                  for f in features if f.name not in used]
+        return factors, notes
+    height = _height_feature([f for f in features if f.name not in used])
     height_task = _is_height_task(task.lower(), desc) and height is not None
     # Progress.
     if height_task and height is not None:
@@ -207,13 +274,13 @@ def generic_program(features: list[CardFeature], action_dim: int, task: str, des
                 f"{num(C_HEIGHT)} * s.{height.name}",
                 doc=f"upward progress: {height.doc or height.name}",
                 units=height.units or "m",
-                range_hint="[0, 2]",
+                range_hint=_hint(*height.range) if height.range else "[0, 2]",
             )
         )
         used.add(height.name)
     else:
         axis, sign = _direction(desc)
-        vel = _velocity_feature(features, axis)
+        vel = _velocity_feature([f for f in features if f.name not in used], axis)
         if vel is not None:
             expr = f"s.{vel.name}" if sign > 0 else f"-s.{vel.name}"
             factors.append(
@@ -224,35 +291,25 @@ def generic_program(features: list[CardFeature], action_dim: int, task: str, des
                     doc=f"progress: {vel.doc or vel.name}"
                     + (" (negated: the task asks for -" + axis + ")" if sign < 0 else ""),
                     units=vel.units or "m/s",
-                    range_hint="[-10, 10]",
+                    range_hint=(_hint(*vel.range) if sign > 0 else _hint(-vel.range[1], -vel.range[0]))
+                    if vel.range else "[-10, 10]",
                 )
             )
             used.add(vel.name)
-    # Posture.
-    upright = next((f for f in features if "upright" in _text(f) and f.name not in used), None)
-    angles = [f for f in features if f.name in ("pitch", "roll") or f.name.endswith(("_pitch", "_roll"))]
-    if upright is not None:
-        factors.append(
-            make_factor(
-                "r_upright",
-                "PHI",
-                f"{num(C_UPRIGHT)} * s.{upright.name}",
-                doc=f"posture: {upright.doc or upright.name}",
-                units=upright.units or "1",
-                range_hint="[-1, 1]",
-            )
-        )
-        used.add(upright.name)
-    elif angles:
+    # Posture: angles (in rad) are better near 0.
+    angles = [f for f in features if f.name not in used and (
+        f.name in ("pitch", "roll") or f.name.endswith(("_pitch", "_roll", "_angle", "_tilt"))) and (
+        f.units in ("", "rad"))]
+    if angles:
         names = [f.name for f in angles]
         factors.append(
             make_factor(
                 "r_upright",
                 "PHI",
                 f"-{num(C_UPRIGHT)} * ({_sq_sum(names)})",
-                doc="posture: squared torso " + " and ".join(names) + ", penalised",
+                doc="posture: squared " + " and ".join(names) + ", penalised (0 = level)",
                 units="rad^2",
-                range_hint=format_range(-10.0 * len(names), 0.0),
+                range_hint=_square_hint(angles, C_UPRIGHT, 10.0),
             )
         )
         used.update(names)
@@ -264,23 +321,12 @@ def generic_program(features: list[CardFeature], action_dim: int, task: str, des
                 f"{num(C_HEIGHT)} * s.{height.name}",
                 doc=f"posture: {height.doc or height.name}",
                 units=height.units or "m",
-                range_hint="[0, 2]",
+                range_hint=_hint(*height.range) if height.range else "[0, 2]",
             )
         )
         used.add(height.name)
-    survival = height_task or re.search(r"without falling|surviv|alive|terminat", desc)
-    if survival and features:
-        anchor = height.name if height is not None else features[0].name
-        factors.append(
-            make_factor(
-                "r_survival",
-                "PHI",
-                f"{num(C_SURVIVAL)} * np.ones_like(s.{anchor})",
-                doc="constant survival bonus per step",
-                units="1",
-                range_hint="[0.2, 0.2]",
-            )
-        )
+    if re.search(r"without falling|surviv|alive|terminat", desc):
+        notes.append("No survival bonus: a per-step constant is what the decomposition's bias fits.")
     # Stability: angular rates (and, when the task is to rise, the linear velocities too).
     rates = [
         f.name
@@ -300,7 +346,7 @@ def generic_program(features: list[CardFeature], action_dim: int, task: str, des
                 f"-{num(C_STABLE)} * ({_sq_sum(rates)})",
                 doc="stability: squared " + ", ".join(rates) + ", penalised",
                 units="squared rates",
-                range_hint=format_range(-C_STABLE * STABLE_TERM_BOUND * len(rates), 0.0),
+                range_hint=_square_hint([f for f in features if f.name in rates], C_STABLE, STABLE_TERM_BOUND),
             )
         )
     if not any(f["type"] == "PHI" for f in factors):
@@ -311,7 +357,13 @@ def generic_program(features: list[CardFeature], action_dim: int, task: str, des
         )
     if action_dim > 0:
         factors.append(_ctrl(action_dim))
-    return factors
+    declared = {f"r_{feat.name}" for feat in features if feat.better is not None}
+    notes += [f"{factor['name']}: {factor['doc']}." for factor in factors if factor["name"] not in declared]
+    for feat in features:
+        if feat.name not in used and not any(f"s.{feat.name}" in factor["code"] for factor in factors):
+            notes.append(f"{feat.name}: not used; the card declares no preference for it (its key 'better') and "
+                         "its name and units match no role.")
+    return factors, notes
 
 
 def synthesize(context: dict[str, Any]) -> dict[str, Any]:
@@ -331,5 +383,7 @@ def synthesize(context: dict[str, Any]) -> dict[str, Any]:
     elif key == "humanoidstandup" and _has(features, "torso_height", *_STANDUP_RATES):
         factors = humanoidstandup_program(action_dim)
     else:
-        factors = generic_program(features, action_dim, task, description)
+        factors, notes = generic_program(features, action_dim, task, description)
+        return {"task": task, "version": 0, "factors": factors, "rationale": " ".join(notes),
+                "engineer": OFFLINE_ENGINEER_LABEL}
     return {"task": task, "version": 0, "factors": factors, "engineer": OFFLINE_ENGINEER_LABEL}

@@ -34,6 +34,10 @@ def cache_key(backend: str, model: str, request: LLMRequest) -> str:
         "messages": [{"role": m["role"], "content": m["content"]} for m in request.messages],
         "decoding": request.decoding(),
     }
+    if backend == "offline":
+        # The rule-based engineer reads the request's structured context, not its prose: the context
+        # determines its reply (an LLM's is determined by the messages, which restate the context).
+        payload["context"] = request.context
     canonical = json.dumps(payload, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
     return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
 

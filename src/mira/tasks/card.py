@@ -34,7 +34,9 @@ CARD_KEYS = ("name", "env_id", "description", "features", "action", "eval_horizo
              "band_feature")
 """Keys a card may have at its top level (docs/task_cards.md explains each)."""
 ACTION_KEYS = ("doc", "names")
-FEATURE_KEYS = ("name", "index", "expr", "units", "doc", "source")
+FEATURE_KEYS = ("name", "index", "expr", "units", "doc", "source", "better", "target")
+BETTER = ("higher", "lower", "closer")
+"""What a feature's ``better`` key may say: larger values are better, smaller are, or nearer ``target``."""
 
 _EXPR_FUNCS: dict[str, Callable[..., np.ndarray]] = {
     "abs": np.abs,
@@ -61,10 +63,17 @@ class Feature:
     index: int | None = None
     expr: str | None = None
     source: str | None = None
+    better: str | None = None
+    """What the task prefers: ``higher``, ``lower`` or ``closer`` (to ``target``); None: not declared."""
+    target: float | None = None
+    """With ``better = "closer"``: the preferred value (0 when omitted)."""
 
     def describe(self) -> str:
         where = f"obs[{self.index}]" if self.index is not None else str(self.expr)
-        return f"s.{self.name}  [{self.units}]  {self.doc}  (= {where})"
+        pref = ""
+        if self.better is not None:
+            pref = f"  (better: {self.better}" + (f" to {self.target:g}" if self.better == "closer" else "") + ")"
+        return f"s.{self.name}  [{self.units}]  {self.doc}  (= {where}){pref}"
 
 
 class _ExprCompiler:
@@ -302,6 +311,13 @@ def card_from_dict(data: dict[str, Any], where: str) -> TaskCard:
             if not isinstance(expr, str):
                 raise TaskCardError(f"task card {at}: feature {fname!r} expr must be a string")
             _ExprCompiler(fname, None).compile(expr)  # syntax and whitelist now; bounds once bound
+        better, target = raw.get("better"), raw.get("target")
+        if better is not None and better not in BETTER:
+            raise TaskCardError(f"task card {at}: feature {fname!r} key 'better' must be one of {', '.join(BETTER)}, "
+                                f"not {better!r}")
+        if target is not None and (better != "closer" or type(target) not in (int, float)):
+            raise TaskCardError(f"task card {at}: feature {fname!r} key 'target' must be a number, and only with "
+                                "better = \"closer\"")
         features.append(
             Feature(
                 name=fname,
@@ -310,6 +326,8 @@ def card_from_dict(data: dict[str, Any], where: str) -> TaskCard:
                 index=index,
                 expr=expr,
                 source=raw.get("source"),
+                better=better,
+                target=None if better != "closer" else float(target or 0.0),
             )
         )
     if not features:
