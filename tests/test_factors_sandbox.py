@@ -163,3 +163,27 @@ def test_whole_check_is_bounded_in_time() -> None:
     assert time.monotonic() - started < 6.0
     assert not report.ok and all(not v.passed for v in report.factors.values())
     assert all({r.rule for r in v.reasons} == {"sandbox-timeout"} for v in report.factors.values())
+
+
+def _hopper_program(code: str) -> FactorProgram:
+    return FactorProgram.from_json({"task": "hopper", "version": 0, "factors": [
+        {"name": "r_x", "type": "PHI", "code": code, "doc": "d", "units": "1", "range_hint": "[-10, 10]"}]})
+
+
+def test_a_division_by_a_margin_that_reaches_zero_where_the_task_ends_is_refused() -> None:
+    """Random rollouts never bring Hopper's torso down to where its episode ends, so the factor is finite
+    on every sandbox state; the card declares the margin's range, and the division is refused there."""
+    card = load_task("hopper")
+    report = sandbox_check(_hopper_program("def r_x(s):\n    v = s.x_velocity\n    return v / s.height_margin\n"),
+                           card)
+    assert not report.ok
+    (violation,) = [v for v in report.factors["r_x"].reasons if v.rule == "singular"]
+    assert violation.line == 3
+    assert "division by s.height_margin, which is 0 where height_margin = 0" in violation.message
+    # Away from zero the same shape is fine, and a log of a velocity (negative on real states) is not.
+    assert sandbox_check(_hopper_program("def r_x(s):\n    return s.x_velocity / (s.height_margin + 2.0)\n"),
+                         card).ok
+    logged = sandbox_check(_hopper_program("def r_x(s):\n    return np.log(1.0 + 0.1 * s.x_velocity)\n"), card)
+    assert logged.ok  # not an affine argument that reaches 0 on these states: left to the numeric checks
+    logged = sandbox_check(_hopper_program("def r_x(s):\n    return np.log(s.x_velocity + 1.0)\n"), card)
+    assert any(v.rule == "singular" and "np.log of" in v.message for v in logged.factors["r_x"].reasons)

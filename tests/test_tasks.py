@@ -137,6 +137,8 @@ def test_unknown_task_name() -> None:
          r"p\.toml, features\[0\]: feature 'angle' key 'better' must be one of higher, lower, closer, not 'up'"),
         (lambda t: t.replace('units = "rad"', 'units = "rad"\nbetter = "higher"\ntarget = 1.0'),
          r"p\.toml, features\[0\]: feature 'angle' key 'target' must be a number, and only with better"),
+        (lambda t: t.replace('units = "rad"', 'units = "rad"\nrange = [1.0, -1.0]'),
+         r"p\.toml, features\[0\]: feature 'angle' key 'range' must be \[lo, hi\] with lo <= hi"),
     ],
 )
 def test_bad_cards_name_the_file_the_key_and_the_line(tmp_path: Path, edit: object, message: str) -> None:

@@ -46,6 +46,7 @@ import numpy as np
 from mira.factors.checker import check_code, check_metadata, parse_range_hint
 from mira.factors.program import FactorProgram
 from mira.factors.sandbox_process import SandboxLimits, WorkerRun, decode_output, run_workers
+from mira.factors.singular import singular_operations
 from mira.factors.violations import Violation
 
 if TYPE_CHECKING:
@@ -360,12 +361,14 @@ def sandbox_check(
     for delta in deltas:
         batches.append(_batch_values(card, obs + delta * rng.standard_normal(obs.shape)))
 
+    declared = {f.name: f.range for f in card.features if f.range is not None}
     verdicts: dict[str, FactorVerdict] = {}
     runnable: list[dict[str, str]] = []
     for f in program.factors:
         static = check_code(f.name, f.type, f.code, features) if static_check else []
         meta = check_metadata(f)
         errors = [v for v in static + meta if v.is_error]
+        errors += singular_operations(f.name, f.code, batches[0], declared)
         verdicts[f.name] = FactorVerdict(
             f.name, f.type, passed=False, reasons=errors, warnings=[str(v) for v in meta if not v.is_error]
         )

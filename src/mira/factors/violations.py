@@ -57,6 +57,8 @@ RULES: dict[str, str] = {
     "saturation": "too many outputs sit at the extremes (saturation ratio above the bound)",
     "lipschitz": "the factor is too steep (quantile of finite-difference gradient norms above the bound)",
     "batch-coupling": "a state's value depends on the other states in the batch",
+    "singular": "a division, logarithm or square root whose argument reaches 0 (or below) on the sandbox's "
+                "states or over the range the task card declares for the feature it reads",
 }
 
 

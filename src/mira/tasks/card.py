@@ -34,7 +34,7 @@ CARD_KEYS = ("name", "env_id", "description", "features", "action", "eval_horizo
              "band_feature")
 """Keys a card may have at its top level (docs/task_cards.md explains each)."""
 ACTION_KEYS = ("doc", "names")
-FEATURE_KEYS = ("name", "index", "expr", "units", "doc", "source", "better", "target")
+FEATURE_KEYS = ("name", "index", "expr", "units", "doc", "source", "better", "target", "range")
 BETTER = ("higher", "lower", "closer")
 """What a feature's ``better`` key may say: larger values are better, smaller are, or nearer ``target``."""
 
@@ -67,6 +67,9 @@ class Feature:
     """What the task prefers: ``higher``, ``lower`` or ``closer`` (to ``target``); None: not declared."""
     target: float | None = None
     """With ``better = "closer"``: the preferred value (0 when omitted)."""
+    range: tuple[float, float] | None = None
+    """The values it takes while an episode runs (termination thresholds included), when declared: the
+    sandbox checks divisions, logarithms and roots of the feature over it."""
 
     def describe(self) -> str:
         where = f"obs[{self.index}]" if self.index is not None else str(self.expr)
@@ -318,6 +321,12 @@ def card_from_dict(data: dict[str, Any], where: str) -> TaskCard:
         if target is not None and (better != "closer" or type(target) not in (int, float)):
             raise TaskCardError(f"task card {at}: feature {fname!r} key 'target' must be a number, and only with "
                                 "better = \"closer\"")
+        declared = raw.get("range")
+        if declared is not None and not (isinstance(declared, list) and len(declared) == 2
+                                         and all(type(v) in (int, float) for v in declared)
+                                         and declared[0] <= declared[1]):
+            raise TaskCardError(f"task card {at}: feature {fname!r} key 'range' must be [lo, hi] with lo <= hi, "
+                                f"not {declared!r}")
         features.append(
             Feature(
                 name=fname,
@@ -328,6 +337,7 @@ def card_from_dict(data: dict[str, Any], where: str) -> TaskCard:
                 source=raw.get("source"),
                 better=better,
                 target=None if better != "closer" else float(target or 0.0),
+                range=None if declared is None else (float(declared[0]), float(declared[1])),
             )
         )
     if not features:
