@@ -334,13 +334,16 @@ def test_revision_moves_on_a_new_program_and_on_loaded_state() -> None:
     assert src.revision != revision
 
 
-@pytest.mark.parametrize(("cores", "threads", "setting", "expected"), [
-    (2, 1, None, True), (2, 2, None, False), (8, 4, None, True), (1, 1, None, False),
-    (1, 1, True, True), (8, 1, False, False)])
+@pytest.mark.parametrize(("cores", "threads", "load", "setting", "expected"), [
+    (2, 1, 0.2, None, True), (2, 2, 0.2, None, False), (8, 4, 0.2, None, True), (1, 1, 0.0, None, False),
+    (1, 1, 0.0, True, True), (8, 1, 0.0, False, False),
+    # Another run on the machine takes the core the thread would use; on 8 cores there is room still.
+    (2, 1, 1.2, None, False), (2, 1, 2.0, None, False), (8, 1, 2.0, None, True), (2, 1, 0.2, True, True)])
 def test_background_training_by_default_only_with_a_spare_core(monkeypatch: pytest.MonkeyPatch, cores: int,
-                                                               threads: int, setting: bool | None,
+                                                               threads: int, load: float, setting: bool | None,
                                                                expected: bool) -> None:
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cores)), raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
     monkeypatch.setattr(torch, "get_num_threads", lambda: threads)
     src = HarsReward(toy_factors(), HarsConfig(train_in_background=setting))
     assert src.background is expected
