@@ -84,8 +84,10 @@ def interventions(run: Path) -> list[str]:
             continue
         att = evidence.get("return_attribution") or {}
         gains = att.get("feature_gains") or []
-        named = (f"returns: R² {att['program_cv_r2']:.2f}, {gains[0]['feature']} +{gains[0]['gain']:.2f}"
-                 if gains else "monitor anomaly")
+        shape = "" if not gains else gains[0]["feature"] if gains[0]["form"] == "value" else f"-{gains[0]['feature']}²"
+        named = (f"returns: R² {att['program_cv_r2']:.2f}, {shape} +{gains[0]['gain']:.2f}"
+                 if gains and evidence.get("cause") == "structural" else "monitor anomaly"
+                 if evidence.get("cause", "anomaly") == "anomaly" else "periodic review")
         what = "+".join(decision.get("operators") or []) or "-"
         verdict = f"installed v{decision['version']}" if decision.get("accepted") else "backed off"
         lines.append(f"{step} ({named}): {what}, {verdict}")
