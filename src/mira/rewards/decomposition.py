@@ -47,6 +47,18 @@ class EpisodeSumRegression:
         self.r2 = float("nan")
         """Fraction of the variance of the stored returns the last fit explains."""
 
+    @classmethod
+    def of(cls, sums: np.ndarray, returns: np.ndarray, lengths: np.ndarray, *, ridge: float = 1.0
+           ) -> EpisodeSumRegression:
+        """A regression holding the given episodes (summed features ``[E, dim]``, returns, lengths)."""
+        reg = cls(sums.shape[1], ridge=ridge, max_episodes=max(1, sums.shape[0]))
+        n = sums.shape[0]
+        reg.sums = np.asarray(sums, dtype=np.float64).copy()
+        reg.returns = np.asarray(returns, dtype=np.float64).reshape(n).copy()
+        reg.lengths = np.asarray(lengths, dtype=np.float64).reshape(n).copy()
+        reg.count = n
+        return reg
+
     def add(self, summed: np.ndarray, episode_return: float, length: float) -> None:
         """Remember one episode's summed features ``[dim]``, its return and its length."""
         summed = np.asarray(summed, dtype=np.float64).reshape(self.dim)

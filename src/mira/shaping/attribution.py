@@ -43,10 +43,7 @@ def cv_r2(sums: np.ndarray, returns: np.ndarray, ridge: float, folds: int = 5) -
     sse = 0.0
     for k in range(folds):
         train, test = fold != k, fold == k
-        reg = EpisodeSumRegression(sums.shape[1], ridge=ridge, max_episodes=n)
-        for x, r in zip(sums[train], returns[train], strict=True):
-            reg.add(x, float(r), 1.0)
-        theta = reg.fit()
+        theta = EpisodeSumRegression.of(sums[train], returns[train], np.ones(int(train.sum())), ridge=ridge).fit()
         sse += float(np.sum((returns[test] - sums[test] @ theta) ** 2))
     return 1.0 - sse / (n * var)
 
