@@ -217,3 +217,18 @@ def test_cli_parsers_register_and_report_errors(tmp_path: Path, capsys: pytest.C
     err = capsys.readouterr().err.strip()
     assert err.startswith("mira sweep: error: sweep file") and "invalid TOML" in err and "\n" not in err
     assert main(["report", str(tmp_path / "missing"), "--out", str(tmp_path / "r")]) == 2
+
+
+def test_dry_run_estimates_the_time_from_the_speeds_runs_here_logged(tmp_path: Path) -> None:
+    grid = SweepGrid(["halfcheetah"], ["dense", "sparse"], ["sac"], [0, 1], 600, [])
+    buf = io.StringIO()
+    dry_run(grid, tmp_path, stream=buf)
+    assert "estimate: none, no run here has logged its speed" in buf.getvalue()
+    run = RunSpec("halfcheetah", "dense", "sac", 0, 600).run_dir(tmp_path)
+    _fake_run(run, status="running", step=300)
+    (run / "train.csv").write_text("step,steps_per_s\n100,2.0\n200,1.0\n300,1.0\n")
+    buf = io.StringIO()
+    dry_run(grid, tmp_path, stream=buf, workers=2)
+    # dense: 300 steps left of seed 0 and 600 of seed 1 at 1 step/s = 900 s, on 2 workers = 0.125 h.
+    assert "estimate: 0.1 h with 2 worker(s)" in buf.getvalue()
+    assert "not counted: halfcheetah/sac/sparse" in buf.getvalue()

@@ -102,7 +102,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     }
     grid, settings = build_grid(preset=args.preset, file=args.file, overrides=overrides)
     if args.dry_run:
-        dry_run(grid, args.out)
+        dry_run(grid, args.out, workers=settings.get("workers"))
         return 0
     options = SweepOptions(workers=settings.get("workers"), backend=settings.get("backend", "pool"),
                            address=settings.get("address"),

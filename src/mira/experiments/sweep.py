@@ -47,8 +47,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+import numpy as np
+
 from mira.errors import UsageError
-from mira.experiments.grid import RunSpec, SweepGrid
+from mira.experiments.grid import RunSpec, SweepGrid, task_label
 from mira.experiments.runs import (
     STATE_DIR,
     USAGE_EXIT,
@@ -261,8 +263,24 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def dry_run(grid: SweepGrid, out: str | Path, stream: IO[str] | None = None) -> list[tuple[RunSpec, Plan]]:
-    """Print (and return) what a sweep would do with each run; writes nothing."""
+def measured_speeds(out: Path, specs: list[RunSpec]) -> dict[tuple[str, str, str], float]:
+    """Median steps/s of each (task, algo, method) over the runs under ``out`` that have logged any."""
+    from mira.runio.csvlog import read_csv
+
+    seen: dict[tuple[str, str, str], list[float]] = {}
+    for spec in specs:
+        log = spec.run_dir(out) / "train.csv"
+        if log.is_file():
+            rates = [float(r["steps_per_s"]) for r in read_csv(log) if r.get("steps_per_s")]
+            seen.setdefault((task_label(spec.task), spec.algo, spec.method), []).extend(r for r in rates if r > 0)
+    return {key: float(np.median(v)) for key, v in seen.items() if v}
+
+
+def dry_run(grid: SweepGrid, out: str | Path, stream: IO[str] | None = None,
+            workers: int | None = None) -> list[tuple[RunSpec, Plan]]:
+    """Print (and return) what a sweep would do with each run, and how long it would take at the speeds
+    the runs already under ``out`` logged (one estimate per method; none without a timed run); writes
+    nothing."""
     stream = stream or sys.stdout
     out = Path(out)
     plans = [(spec, plan_run(spec, out)) for spec in grid.runs()]
@@ -271,6 +289,26 @@ def dry_run(grid: SweepGrid, out: str | Path, stream: IO[str] | None = None) -> 
         print(f"{plan.action:8s} {spec.run_id}  ({plan.reason}){cmd}", file=stream)
     counts = {a: sum(p.action == a for _, p in plans) for a in ("start", "resume", "skip", "conflict")}
     print(f"{len(plans)} runs: " + ", ".join(f"{n} {a}" for a, n in counts.items()), file=stream)
+    speeds = measured_speeds(out, [spec for spec, _ in plans])
+    seconds, unknown = 0.0, set()
+    for spec, plan in plans:
+        if plan.action not in ("start", "resume"):
+            continue
+        status = read_json(spec.run_dir(out) / "status.json") or {} if plan.action == "resume" else {}
+        done = int(status.get("step", 0))
+        key = (task_label(spec.task), spec.algo, spec.method)
+        if key in speeds:
+            seconds += max(0, spec.steps - done) / speeds[key]
+        else:
+            unknown.add("/".join(key))
+    parallel = max(1, workers or 1)
+    if seconds:
+        print(f"estimate: {seconds / parallel / 3600:.1f} h with {parallel} worker(s), at the steps/s the runs here "
+              "logged (evaluations excluded)" + (f"; not counted: {', '.join(sorted(unknown))}" if unknown else ""),
+              file=stream)
+    elif unknown:
+        print("estimate: none, no run here has logged its speed yet (time one with a few thousand steps first)",
+              file=stream)
     return plans
 
 
