@@ -34,17 +34,27 @@ def _count(n: int, noun: str) -> str:
     return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
-def _decomposition(train: list[dict[str, str]]) -> list[str]:
-    """The last logged return decomposition (HARS's head): what the returns were found to be made of."""
-    last = next((r for r in reversed(train) if r.get("decomp_r2")), None)
+def _decomposition_line(what: str, weights: dict[str, float], shares: dict[str, float], r2: float) -> str:
+    """One return decomposition (HARS's head) in words: what the returns were found to be made of."""
+    parts = ", ".join(f"{n} {float(w):+.3g}" + (f" ({100 * float(shares[n]):.0f}%)" if n in shares else "")
+                      for n, w in weights.items())
+    return (f"Return decomposition {what} (r̂ = Σ w·factor + bias fitted to episodic returns; weight and share "
+            f"of r̂): {parts}; R² of returns {float(r2):.3f}.")
+
+
+def _decomposition(run: Path) -> list[str]:
+    """The latest decomposition: the outer loop's ``decomposition.json`` (whatever program it is over),
+    else the last one logged in ``train.csv`` (a static program's)."""
+    latest = _load(run / "decomposition.json")
+    if latest and latest.get("episodes"):
+        return [_decomposition_line(f"of program v{latest['version']} at step {latest['step']}",
+                                    latest["weights"], latest.get("shares", {}), latest["r2"])]
+    last = next((r for r in reversed(read_csv(run / "train.csv")) if r.get("decomp_r2")), None)
     if last is None:
         return []
     weights = {k[2:]: float(v) for k, v in last.items() if k.startswith("w_") and v not in ("", None)}
     shares = {k[6:]: float(v) for k, v in last.items() if k.startswith("share_") and v not in ("", None)}
-    parts = ", ".join(f"{n} {w:+.3g}" + (f" ({100 * shares[n]:.0f}%)" if n in shares else "")
-                      for n, w in weights.items())
-    return [f"Return decomposition at step {last['step']} (r̂ = Σ w·factor + bias fitted to episodic returns; "
-            f"weight and share of r̂): {parts}; R² of returns {float(last['decomp_r2']):.3f}."]
+    return [_decomposition_line(f"at step {last['step']}", weights, shares, float(last["decomp_r2"]))]
 
 
 def explain(run_dir: str | Path) -> str:
@@ -80,16 +90,7 @@ def explain(run_dir: str | Path) -> str:
         if len(programs) > 1:
             versions = ", ".join(p.stem.lstrip("v").lstrip("0") or "0" for p in programs)
             lines.append(f"The run ended on program v{int(programs[-1].stem[1:])} (versions: {versions}).")
-    latest = _load(run / "decomposition.json")
-    if latest and latest.get("episodes"):
-        shares = latest.get("shares", {})
-        parts = ", ".join(f"{n} {w:+.3g}" + (f" ({100 * shares[n]:.0f}%)" if n in shares else "")
-                          for n, w in latest["weights"].items())
-        lines.append(f"Return decomposition of program v{latest['version']} at step {latest['step']} (r̂ = Σ w·factor "
-                     f"+ bias fitted to episodic returns; weight and share of r̂): {parts}; R² of returns "
-                     f"{float(latest['r2']):.3f}.")
-    else:
-        lines += _decomposition(read_csv(run / "train.csv"))
+    lines += _decomposition(run)
     diag = read_csv(run / "diagnostics.csv")
     if diag:
         triggers = [r for r in diag if r.get("trigger") == "1"]

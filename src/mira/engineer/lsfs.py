@@ -47,7 +47,7 @@ def observed_ranges(card: TaskCard) -> dict[str, list[float]]:
 
     try:
         obs, _ = collect_states(card)
-    except Exception:  # the card's environment is checked elsewhere; without states there are no ranges
+    except MiraError:  # a card whose environment cannot be built is reported where it is built
         return {}
     out = {}
     for name, values in card.feature_values(obs).items():
