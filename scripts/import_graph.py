@@ -1,9 +1,12 @@
-"""The import graph of ``src/mira``: cycles and upward arrows between the architecture's layers.
+"""The import graph of ``src/mira``: cycles and upward arrows between the architecture's layers, and
+modules or classes too long to read.
 
 Every ``import`` of a ``mira`` module counts, wherever it is written (module level, inside a function,
 under ``TYPE_CHECKING``): a lazy import hides an arrow from the reader, not from the design. Modules are
 grouped into the layers of ``docs/architecture.md``; an arrow may point to the same or a lower layer
-only. Exit status 1, with every offending arrow and cycle, when the graph breaks either rule.
+only. A module holds at most ``MAX_MODULE_LINES`` lines and a class ``MAX_CLASS_LINES``, except the
+program checker's AST visitor (one ``visit_*`` per node kind, read one method at a time). Exit status
+1, with every offending arrow, cycle, module and class, when the tree breaks a rule.
 
     python scripts/import_graph.py              # check (CI runs this through the test suite)
     python scripts/import_graph.py --dot        # the package-level graph in Graphviz syntax
@@ -31,6 +34,11 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("experiments", ("mira.experiments",)),
     ("cli", ("mira.cli", "mira.__main__")),
 ]
+
+
+MAX_MODULE_LINES = 600
+MAX_CLASS_LINES = 300
+SIZE_EXCEPTIONS = {"mira.factors.checker", "mira.factors.checker._FunctionChecker"}
 
 
 def layer_of(module: str) -> int:
@@ -150,6 +158,26 @@ def upward(edges: dict[str, set[str]]) -> list[tuple[str, str]]:
     return sorted(bad)
 
 
+def oversized(sources: dict[str, str]) -> list[str]:
+    """Modules over ``MAX_MODULE_LINES`` lines and classes over ``MAX_CLASS_LINES`` (``sources``: module
+    name → its text), as readable lines; the exceptions are ``SIZE_EXCEPTIONS``."""
+    found = []
+    for name, text in sorted(sources.items()):
+        lines = len(text.splitlines())
+        if lines > MAX_MODULE_LINES and name not in SIZE_EXCEPTIONS:
+            found.append(f"module {name}: {lines} lines (at most {MAX_MODULE_LINES})")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.ClassDef) and f"{name}.{node.name}" not in SIZE_EXCEPTIONS:
+                size = (node.end_lineno or node.lineno) - node.lineno + 1
+                if size > MAX_CLASS_LINES:
+                    found.append(f"class {name}.{node.name}: {size} lines (at most {MAX_CLASS_LINES})")
+    return found
+
+
+def sources() -> dict[str, str]:
+    return {module_name(p): p.read_text(encoding="utf-8") for p in sorted((SRC / "mira").rglob("*.py"))}
+
+
 def package(module: str) -> str:
     parts = module.split(".")
     return ".".join(parts[:2])
@@ -211,9 +239,12 @@ def main() -> int:
         print("cycle: " + " <-> ".join(component))
     for src, dst in found_upward:
         print(f"upward: {src} ({LAYERS[layer_of(src)][0]}) -> {dst} ({LAYERS[layer_of(dst)][0]})")
-    if found_cycles or found_upward:
+    found_large = oversized(sources())
+    for line in found_large:
+        print(f"too long: {line}")
+    if found_cycles or found_upward or found_large:
         return 1
-    print(f"import graph: {len(edges)} modules, no cycles, no upward arrows")
+    print(f"import graph: {len(edges)} modules, no cycles, no upward arrows, none too long")
     return 0
 
 

@@ -1,4 +1,5 @@
-"""The architecture's import rule: no cycles, no arrow from a lower layer to a higher one."""
+"""The architecture's rules: no import cycles, no arrow from a lower layer to a higher one, no module or
+class too long to read."""
 
 from __future__ import annotations
 
@@ -24,6 +25,21 @@ def test_the_checker_finds_a_cycle_and_an_upward_arrow(tmp_path: Path) -> None:
     edges = {"mira.replay": {"mira.cli"}, "mira.cli": {"mira.replay"}, "mira.errors": set()}
     assert ig.cycles(edges) == [["mira.cli", "mira.replay"]]
     assert ig.upward(edges) == [("mira.replay", "mira.cli")]
+
+
+def test_the_checker_finds_a_module_and_a_class_too_long() -> None:
+    """The size rule can fail: a module and a class past their limits are named, an exception is not."""
+    sys.path.insert(0, str(SCRIPT.parent))
+    try:
+        import import_graph as ig
+    finally:
+        sys.path.pop(0)
+    big_class = "class Big:\n" + "    x = 1\n" * ig.MAX_CLASS_LINES
+    long_module = "y = 0\n" * (ig.MAX_MODULE_LINES + 1)
+    found = ig.oversized({"mira.a": big_class, "mira.b": long_module, "mira.factors.checker": long_module,
+                          "mira.c": "class Small:\n    x = 1\n"})
+    assert found == [f"class mira.a.Big: {ig.MAX_CLASS_LINES + 1} lines (at most {ig.MAX_CLASS_LINES})",
+                     f"module mira.b: {ig.MAX_MODULE_LINES + 1} lines (at most {ig.MAX_MODULE_LINES})"]
 
 
 def test_docs_show_the_current_graph() -> None:

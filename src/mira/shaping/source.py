@@ -50,6 +50,7 @@ import numpy as np
 import torch
 
 from mira.errors import NonFiniteError
+from mira.factors.program import FactorProgram
 from mira.replay import Batch
 from mira.rewards.base import RewardContext
 from mira.rewards.lookahead import LookaheadSource, Relabelled, resolve
@@ -123,6 +124,20 @@ def _network_inputs(columns: FactorColumns, batch: Batch, n_ctx: int, window: in
     return f, obs, valid
 
 
+def _forward_with_graph(nets: PotentialNetworks, columns: FactorColumns, batch: Batch, base: torch.Tensor,
+                        n_ctx: int, joint: bool) -> Pending:
+    """The forward a training batch is shaped with: Φ at [s; s′] with its graph (and, with ``n_ctx`` > 0,
+    the TCE windows' aggregations), kept for the training step. With ``joint`` the agent's reward is
+    built on a detached leaf copy of Φ, where the critic's backward leaves ∂L_RL/∂Φ (module docstring)."""
+    b, window, device = batch.reward.shape[0], nets.config.tce_window, nets.device
+    f, obs, valid = _network_inputs(columns, batch, n_ctx, window, device)
+    phi, v_all, alpha_all = nets.forward(f.to(device), obs, nets.norm(), n_phi=2 * b)
+    leaf = phi.detach().requires_grad_(True) if joint else None
+    v_ctx = v_all[2 * b :].reshape(n_ctx, window - 1, -1) if valid is not None else None
+    return Pending(batch, base, phi, v_all[: 2 * b], alpha_all[: 2 * b], leaf, v_ctx,
+                   None if valid is None else valid.to(device))
+
+
 def _as_numpy(obs: np.ndarray | torch.Tensor, obs_dim: int) -> np.ndarray:
     if isinstance(obs, torch.Tensor):
         obs = obs.detach().cpu().numpy()
@@ -149,8 +164,7 @@ class HarsReward(LookaheadSource):
         """κ, the PBRS term's weight in the agent's reward (see HarsConfig.shaping_weight)."""
         if self.config.alignment not in ("decomposed", "episodic"):
             raise ValueError(f"hars.alignment must be 'decomposed' or 'episodic', not {self.config.alignment!r}")
-        self.updates = 0
-        self.calls = 0  # agent updates seen; HARS trains on every ``update_every``-th
+        self.updates, self.calls = 0, 0  # training steps taken; agent updates seen (see ``update_every``)
         self._last_metrics: dict[str, torch.Tensor] | None = None
         self._pending: Pending | None = None
         self._bound = False
@@ -229,23 +243,16 @@ class HarsReward(LookaheadSource):
             self.columns.flush()  # the windows read rows before the batch's
         else:
             self.columns.ensure(batch.indices)
-        idx = torch.from_numpy(batch.indices)
         n_ctx = (b if cfg.tce_batch is None else min(b, cfg.tce_batch)) if with_tce else 0
-        f, obs, valid = _network_inputs(self.columns, batch, n_ctx, cfg.tce_window, self.device)
-        phi, v_all, alpha_all = self.nets.forward(f.to(self.device), obs, self.nets.norm(), n_phi=2 * b)
-        v, alpha = v_all[: 2 * b], alpha_all[: 2 * b]
         # What Φ is aligned to and the agent's reward is built on: r̂, or r_ext (episodic alignment).
-        base = batch.reward if cfg.alignment == "episodic" else self.decomposed.of_rows(idx).to(batch.reward.device)
-        joint = cfg.joint and self.kappa != 0.0
-        leaf = phi.detach()
-        if joint:
-            leaf.requires_grad_(True)
-        v_ctx = v_all[2 * b :].reshape(n_ctx, cfg.tce_window - 1, -1) if valid is not None else None
-        self._pending = Pending(batch, base, phi, v, alpha, leaf if joint else None, v_ctx,
-                                None if valid is None else valid.to(self.device))
+        base = batch.reward if cfg.alignment == "episodic" else \
+            self.decomposed.of_rows(torch.from_numpy(batch.indices)).to(batch.reward.device)
+        self._pending = _forward_with_graph(self.nets, self.columns, batch, base, n_ctx,
+                                            joint=cfg.joint and self.kappa != 0.0)
         if self.kappa == 0.0:
             return base
-        return base + self.kappa * (self.gamma * (1.0 - batch.terminated) * leaf[b:] - leaf[:b])
+        phi = self._pending.leaf if self._pending.leaf is not None else self._pending.phi.detach()
+        return base + self.kappa * (self.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b])
 
     def lookahead(self) -> int:
         # Φ is one fixed function from one training update to the next, so the batches of a whole
@@ -398,8 +405,7 @@ class HarsReward(LookaheadSource):
         prog = self.program
         return {"method": self.name, "phi_factors": list(self.factors.phi_names),
                 "aux_factors": list(self.factors.aux_names), "hars": asdict(self.config),
-                "train_in_background": self.background, "alignment": self.config.alignment,
-                "kappa": self.kappa,
+                "train_in_background": self.background, "alignment": self.config.alignment, "kappa": self.kappa,
                 "decomposition": self.head.describe() if self._bound else None,
                 "program_version": None if prog is None else prog.version}
 
@@ -410,13 +416,11 @@ class HarsReward(LookaheadSource):
             "format": 2,
             **self.memory.state_dict(),
             **self.nets.state_dict(),
-            "updates": self.updates,
-            "calls": self.calls,
+            "updates": self.updates, "calls": self.calls,
             "last_metrics": None if self._last_metrics is None else {
                 k: v.detach().cpu() for k, v in self._last_metrics.items()},
             "last_l_aux": self._last_l_aux.detach().cpu(),
-            "phi_names": list(self.phi_names),
-            "aux_names": list(self.aux_names),
+            "phi_names": list(self.phi_names), "aux_names": list(self.aux_names),
             "program": None if prog is None else prog.to_json(),
         }
 
@@ -424,8 +428,6 @@ class HarsReward(LookaheadSource):
         self.sync()
         if state["program"] is not None and (self.program is None
                                              or self.program.to_json() != state["program"]):
-            from mira.factors.program import FactorProgram
-
             self._install(ProgramFactorSource(FactorProgram.from_json(state["program"]), self.ctx.card))
         if list(self.factors.phi_names) != state["phi_names"] or list(self.factors.aux_names) != state["aux_names"]:
             raise ValueError(f"checkpoint HARS factors {state['phi_names']} | {state['aux_names']} do not match "
@@ -436,8 +438,7 @@ class HarsReward(LookaheadSource):
         self._build_phi_nets(keep_tce_state=False)
         self.nets.load_weights(state)
         self._revision += 1
-        self.updates = int(state["updates"])
-        self.calls = int(state.get("calls", self.updates))
+        self.updates, self.calls = int(state["updates"]), int(state.get("calls", state["updates"]))
         last = state.get("last_metrics")
         self._last_metrics = None if last is None else {k: v.to(self.device) for k, v in last.items()}
         self._last_l_aux = state["last_l_aux"].to(self.device)
