@@ -130,7 +130,7 @@ def test_alignment_target_is_r_hat_and_phi_gets_no_dense_or_episodic_signal() ->
         phi = pending.phi.detach()
         pbrs = src.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b]
         torch.testing.assert_close(reward.detach(), expected_base + src.kappa * pbrs)
-        assert src.kappa == 1.0  # the default under either alignment
+        assert src.kappa == (1.0 if alignment == "episodic" else 0.0)  # the defaults
 
 
 def test_kappa_adds_the_pbrs_term_in_grouped_and_single_relabelling() -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-DEFAULT_DECOMPOSED_KAPPA = 1.0
+DEFAULT_DECOMPOSED_KAPPA = 0.0
 """κ under ``decomposed`` alignment when ``shaping_weight`` is None (measured: bench/RESULTS.md)."""
 
 

@@ -6,7 +6,8 @@ What the agent learns from, for a sampled transition (s, a, s′):
 
 with r̂ the decomposition head's per-step reward (:mod:`mira.shaping.decomposition`, fitted to
 episodic returns only) and Φ the FAB → VPM potential TD-aligned to r̂ (:mod:`mira.shaping.objective`).
-κ = 1 by default (0 gives the agent r̂ alone); under ``hars.alignment=episodic`` (the paper's letter)
+κ = 0 by default: the agent learns from r̂ alone, and Φ (still aligned to r̂) is what MCM and SRR
+read; κ = 1 adds the PBRS term. Under ``hars.alignment=episodic`` (the paper's letter)
 r̂ is replaced by the episodic r_ext in both places. Terminals are absorbing; a time-limit truncation
 keeps Φ(s′), as the critic keeps bootstrapping. The pieces:
 
