@@ -66,6 +66,11 @@ def test_attribution_names_what_the_program_misses_and_nothing_when_it_is_comple
     top = {(g.feature, g.form) for g in att.gains[:2]}
     assert top == {("alpha", "value"), ("beta", "neg_square")}
     assert att.best is not None and att.best.gain > 0.2
+    assert att.best.share == pytest.approx(att.best.gain / (1.0 - att.program_r2))
+    # With one term missing, that term covers nearly all of what the program leaves unexplained.
+    half = np.concatenate([(-(feats["beta"] ** 2)).sum(axis=1)[:, None], ones], axis=1)
+    att = attribute_returns(half, returns, _sums(feats), ridge=1e-3)
+    assert att.best is not None and (att.best.feature, att.best.form) == ("alpha", "value") and att.best.share > 0.95
     # ... while with both terms nothing is left for any feature to explain.
     complete = np.concatenate([feats["alpha"].sum(axis=1)[:, None], (-(feats["beta"] ** 2)).sum(axis=1)[:, None],
                                ones], axis=1)
@@ -91,8 +96,9 @@ def _context(**overrides: Any) -> dict[str, Any]:
         "return_trend": {"recent_mean": 1.0, "baseline": 1.0}, "max_candidates": 3, "guided": True,
         "allowed_operators": ["Scale", "Sat", "Gate", "Refactor", "Add", "Prune"],
         "return_attribution": {"program_cv_r2": 0.1, "episodes": 40, "feature_gains": [
-            {"feature": "omega", "form": "neg_square", "cv_r2": 0.7, "gain": 0.6, "range": [-2.0, 3.0]},
-            {"feature": "kappa_t", "form": "value", "cv_r2": 0.3, "gain": 0.2, "range": [0.0, 5.0]},
+            {"feature": "omega", "form": "neg_square", "cv_r2": 0.95, "gain": 0.85, "range": [-2.0, 3.0]},
+            {"feature": "kappa_t", "form": "value", "cv_r2": 0.6, "gain": 0.5, "range": [0.0, 5.0]},
+            {"feature": "omega", "form": "value", "cv_r2": 0.4, "gain": 0.3, "range": [-2.0, 3.0]},
             {"feature": "zeta", "form": "value", "cv_r2": 0.11, "gain": 0.01, "range": [-1.0, 1.0]}]},
     }
     ctx.update(overrides)
@@ -102,7 +108,7 @@ def _context(**overrides: Any) -> dict[str, Any]:
 def test_engineer_adds_the_features_that_explain_the_returns_whatever_their_names() -> None:
     reply = _srr(_context())
     adds = [c for c in reply["candidates"] if c["edits"][0]["operator"] == "Add"]
-    assert len(adds) == 2  # the two features above the engineer's gain floor, best first
+    assert len(adds) == 2  # the two features above the engineer's floors (gain, share), best first
     first, second = (c["updated_factors"][-1] for c in adds)
     assert first["code"] == "def r_omega_sq(s):\n    return -1.0 * s.omega ** 2\n"
     assert first["range_hint"] == "[-9, 0]" and first["type"] == "PHI"
@@ -111,9 +117,24 @@ def test_engineer_adds_the_features_that_explain_the_returns_whatever_their_name
     for cand in adds:  # the rest of the program is kept, and the new program parses
         assert cand["updated_factors"][0]["name"] == "f_trim"
         FactorProgram.from_json({"task": "glider", "version": 1, "factors": cand["updated_factors"]})
+    assert "94% of what it leaves unexplained" in adds[0]["edits"][0]["justification"]
     # Without the evidence (the unguided ablation), or without Add allowed, there is no such candidate.
     for ctx in (_context(guided=False), _context(allowed_operators=["Scale", "Sat"])):
         assert all(c["edits"][0]["operator"] != "Add" for c in _srr(ctx)["candidates"])
+
+
+def test_engineer_does_not_add_a_feature_that_explains_only_part_of_the_residual() -> None:
+    """A feature whose gain is large but covers less than half of what the program leaves unexplained
+    (a correlate of what is missing, e.g. a gait angle once the agent runs) is not proposed; the share
+    is derived from the R² when the attribution does not carry it."""
+    gains = [{"feature": "omega", "form": "neg_square", "cv_r2": 0.89, "gain": 0.09, "range": [-2.0, 3.0]},
+             {"feature": "kappa_t", "form": "value", "cv_r2": 0.88, "gain": 0.08, "share": 0.4, "range": [0.0, 5.0]}]
+    reply = _srr(_context(return_attribution={"program_cv_r2": 0.8, "episodes": 40, "feature_gains": gains}))
+    assert all(c["edits"][0]["operator"] != "Add" for c in reply["candidates"])  # shares 0.45 (derived) and 0.4
+    gains[0]["cv_r2"], gains[0]["gain"] = 0.95, 0.15  # 0.15 of the 0.2 left: 75%
+    reply = _srr(_context(return_attribution={"program_cv_r2": 0.8, "episodes": 40, "feature_gains": gains}))
+    adds = [c for c in reply["candidates"] if c["edits"][0]["operator"] == "Add"]
+    assert [c["updated_factors"][-1]["name"] for c in adds] == ["r_omega_sq"]
 
 
 @pytest.mark.slow

@@ -44,7 +44,7 @@ class RequestContext:
     attention: dict[str, float] = field(default_factory=dict)
     unexplained: list[dict[str, Any]] = field(default_factory=list)
     """Task features that explain returns the program cannot, largest gain first: ``{feature, form
-    ('value' or 'neg_square'), gain, cv_r2, range}`` (see :mod:`mira.shaping.attribution`)."""
+    ('value' or 'neg_square'), gain, share, cv_r2, range}`` (see :mod:`mira.shaping.attribution`)."""
     program_r2: float | None = None
     """The program's own out-of-sample R² of the returns, when the request carries it."""
 
@@ -149,6 +149,7 @@ def _attribution(raw: Any, features: list[str]) -> tuple[float | None, list[dict
     if not isinstance(raw, dict):
         return None, []
     out: list[dict[str, Any]] = []
+    program_r2 = _opt_float(raw.get("program_cv_r2"))
     for item in raw.get("feature_gains") or []:
         if not isinstance(item, dict):
             continue
@@ -159,7 +160,11 @@ def _attribution(raw: Any, features: list[str]) -> tuple[float | None, list[dict
         lo = hi = None
         if isinstance(rng, list) and len(rng) == 2:
             lo, hi = _opt_float(rng[0]), _opt_float(rng[1])
-        out.append({"feature": name, "form": form, "gain": gain, "cv_r2": _opt_float(item.get("cv_r2")),
+        share = _opt_float(item.get("share"))
+        if share is None and program_r2 is not None:  # an attribution written before shares were
+            share = gain / max(1.0 - program_r2, 1e-12)
+        out.append({"feature": name, "form": form, "gain": gain, "share": share,
+                    "cv_r2": _opt_float(item.get("cv_r2")),
                     "range": None if lo is None or hi is None else (min(lo, hi), max(lo, hi))})
     out.sort(key=lambda e: -e["gain"])
-    return _opt_float(raw.get("program_cv_r2")), out
+    return program_r2, out

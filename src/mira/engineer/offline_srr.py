@@ -43,6 +43,7 @@ from mira.llm.base import OFFLINE_ENGINEER_LABEL
 
 # Rule thresholds: standardised values are robust z-scores (median/MAD), raw values as in 4.3.1.
 UNEXPLAINED_MIN_GAIN = 0.02  # out-of-sample R² of the returns a task feature must add to be proposed
+UNEXPLAINED_MIN_SHARE = 0.5  # ... and the fraction of what the program leaves unexplained it must cover
 UNEXPLAINED_CANDIDATES = 2  # Add candidates from the attribution, best features first
 PVC_LOW_Z = -1.0
 PVC_LOW_RAW = 0.1
@@ -465,7 +466,9 @@ def add_unexplained(ev: RequestContext) -> list[tuple[dict, list[dict]]]:
     """Structural repair: Add the task features that explain the returns the program cannot.
 
     The evidence is the decomposition's attribution: with a feature's per-episode sum added to the
-    program's factors the out-of-sample R² of the episodic returns rises by ``gain``. The feature enters
+    program's factors the out-of-sample R² of the episodic returns rises by ``gain``, which is ``share`` of
+    what the program leaves unexplained; a feature must cover at least half of it (a missing factor
+    covers nearly all, a correlate such as a gait angle a part; SRR verifies either way). The feature enters
     in the shape that earned the gain (its value, or minus its square), as a PHI factor of its own; the
     decomposition head then finds its weight, so neither its scale nor its sign need be guessed.
     Nothing here depends on the feature's or the program's names.
@@ -475,6 +478,8 @@ def add_unexplained(ev: RequestContext) -> list[tuple[dict, list[dict]]]:
     for entry in ev.unexplained:
         if entry["gain"] < UNEXPLAINED_MIN_GAIN or entry["feature"] in used:
             continue
+        if entry["share"] is not None and entry["share"] < UNEXPLAINED_MIN_SHARE:
+            continue  # explains part of the residual only: a correlate of what is missing, not the thing
         feature, form, rng = entry["feature"], entry["form"], entry["range"]
         used.add(feature)
         if form == "value":
@@ -486,9 +491,10 @@ def add_unexplained(ev: RequestContext) -> list[tuple[dict, list[dict]]]:
         name = _fresh_name(ev, f"r_{feature}" if form == "value" else f"r_{feature}_sq")
         before = "?" if ev.program_r2 is None else f"{ev.program_r2:.3f}"
         after = "?" if entry["cv_r2"] is None else f"{entry['cv_r2']:.3f}"
+        share = "" if entry["share"] is None else f", {entry['share']:.0%} of what it leaves unexplained"
         why = (f"the program's factors explain the episodic returns out of sample with R² {before}; with "
                f"{'' if form == 'value' else '-'}{feature}{'' if form == 'value' else '²'} added, {after} "
-               f"(+{entry['gain']:.3f}): the program misses what the task pays for (Add)")
+               f"(+{entry['gain']:.3f}{share}): the program misses what the task pays for (Add)")
         factor = make_factor(name, "PHI", expr, doc=f"task feature {feature} ({form}), added because it explains "
                              "returns the program could not", units="1", range_hint=hint)
         factor["polarity"] = polarity

@@ -124,7 +124,8 @@ def _attribution_lines(ev: Evidence) -> list[str]:
     for g in att["feature_gains"]:
         shape = g["feature"] if g["form"] == "value" else f"-{g['feature']}²"
         lo, hi = g["range"]
-        lines.append(f"  - {shape}: R² {float(g['cv_r2']):.3f} ({float(g['gain']):+.3f}), observed range "
+        share = "" if g.get("share") is None else f", {float(g['share']):.0%} of what the program leaves unexplained"
+        lines.append(f"  - {shape}: R² {float(g['cv_r2']):.3f} ({float(g['gain']):+.3f}{share}), observed range "
                      f"[{lo:.4g}, {hi:.4g}]")
     return lines
 

@@ -4,8 +4,9 @@ task pays for.
 MCM (section 4.3) watches learning dynamics for anomalies relative to the run's own healthy history. A
 program that is wrong from the first step has no healthy history to depart from, so MIRA also asks the
 return decomposition directly, every cycle: does a task feature explain episodic returns the program's
-factors cannot (:mod:`mira.shaping.attribution`)? ``repair_cycles`` cycles in a row of such a gain call
-SRR with the attribution as evidence; after an intervention the check rests ``repair_cooldown`` cycles.
+factors cannot (:mod:`mira.shaping.attribution`), and most of what they leave unexplained?
+``repair_cycles`` cycles in a row of such a gain call SRR with the attribution as evidence; after an
+intervention the check rests ``repair_cooldown`` cycles.
 """
 
 from __future__ import annotations
@@ -49,7 +50,8 @@ class StructuralCheck:
         self.latest = attribute_returns(memory.head_sums(rows), returns, sums, self.hars.config.decompose_ridge,
                                         cfg.repair_folds, ranges)
         best = self.latest.best
-        self.streak = self.streak + 1 if best is not None and best.gain >= cfg.repair_min_gain else 0
+        counts = best is not None and best.gain >= cfg.repair_min_gain and best.share >= cfg.repair_min_share
+        self.streak = self.streak + 1 if counts else 0
         return self.latest
 
     @property

@@ -14,8 +14,9 @@ per-episode sum joins the program's factors, against the program's own out-of-sa
 cross-validation over the stored episodes, with the head's ridge closed form
 (:class:`~mira.rewards.decomposition.EpisodeSumRegression`). Out of sample, so that an extra regressor
 only scores by explaining returns it was not fitted to. Only episodic returns are read, never the dense
-reward. The monitor triggers a repair on a persistent gain, the engineer is shown the gains, and SRR
-verifies a candidate by the same measure.
+reward. The monitor triggers a repair on a persistent gain that covers most of what the program leaves
+unexplained (its ``share``), the engineer is shown the gains, and SRR verifies a candidate by the same
+measure.
 """
 
 from __future__ import annotations
@@ -58,6 +59,10 @@ class FeatureGain:
     """Out-of-sample R² of the program's factors plus this feature."""
     gain: float
     """``r2`` minus the program's own out-of-sample R²."""
+    share: float
+    """``gain`` over what the program leaves unexplained (1 − its out-of-sample R²): near 1 when the
+    feature is what the program misses, a fraction when it only correlates with it (a gait, say, with
+    the speed the task pays for)."""
 
 
 @dataclass
@@ -77,6 +82,7 @@ class ReturnAttribution:
     def as_dict(self, top: int = 5) -> dict[str, Any]:
         return {"program_cv_r2": self.program_r2, "episodes": self.episodes,
                 "feature_gains": [{"feature": g.feature, "form": g.form, "cv_r2": g.r2, "gain": g.gain,
+                                   "share": g.share,
                                    "range": list(self.ranges.get(g.feature, (float("nan"), float("nan"))))}
                                   for g in self.gains[:top]]}
 
@@ -92,6 +98,6 @@ def attribute_returns(program_sums: np.ndarray, returns: np.ndarray, feature_sum
         for form, col in by_form.items():
             r2 = cv_r2(np.concatenate([program_sums, col[:, None]], axis=1), returns, ridge, folds)
             if np.isfinite(r2) and np.isfinite(base):
-                gains.append(FeatureGain(name, form, r2, r2 - base))
+                gains.append(FeatureGain(name, form, r2, r2 - base, (r2 - base) / max(1.0 - base, 1e-12)))
     gains.sort(key=lambda g: -g.gain)
     return ReturnAttribution(base, int(returns.shape[0]), gains, dict(ranges or {}))
