@@ -34,6 +34,16 @@ def test_csv_log_drops_torn_last_line_and_rewinds(tmp_path: Path) -> None:
     assert [r["step"] for r in reopened.read()] == ["1", "2"]
 
 
+def test_csv_log_widens_with_new_columns_keeping_earlier_rows(tmp_path: Path) -> None:
+    log = CsvLog(tmp_path / "t.csv", ["step", "w_a"])
+    log.append({"step": 1, "w_a": 0.5})
+    log.widen(["step", "w_a", "w_b"])  # a new program brings w_b
+    log.append({"step": 2, "w_b": 1.5})
+    log.widen(["step", "w_b"])  # nothing new: the file is left alone
+    rows = CsvLog(tmp_path / "t.csv", ["step"]).read()  # reopened, the file's own header is kept
+    assert rows == [{"step": "1", "w_a": "0.5", "w_b": ""}, {"step": "2", "w_a": "", "w_b": "1.5"}]
+
+
 def test_jsonl_tolerates_torn_last_line(tmp_path: Path) -> None:
     path = tmp_path / "x.jsonl"
     append_line(path, json.dumps({"a": 1}))

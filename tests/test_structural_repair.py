@@ -152,6 +152,9 @@ def test_mira_repairs_a_program_without_progress(tmp_path: Path, fast_train_args
     assert decisions and decisions[0]["accepted"] and decisions[0]["operators"] == ["Add"]
     repaired = json.loads((run / "programs" / "v001.json").read_text())
     assert any("s.x_velocity" in f["code"] for f in repaired["factors"])
+    added = next(f["name"] for f in repaired["factors"] if "s.x_velocity" in f["code"])
+    train = read_csv(run / "train.csv")  # the new factor's weight is logged from the repair on
+    assert any(r.get(f"w_{added}") for r in train) and not train[0].get(f"w_{added}")
     evidence = json.loads(next((run / "interventions").glob("*/evidence.json")).read_text())
     assert evidence["return_attribution"]["feature_gains"][0]["feature"] == "x_velocity"
     assert rows[-1]["version"] == "1"

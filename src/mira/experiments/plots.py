@@ -150,8 +150,10 @@ def plot_run_diagnostics(
     train_rows: Sequence[Mapping[str, str]],
     decisions: Sequence[Mapping[str, Any]],
     factors: Sequence[str] | None = None,
+    returns: Curve | None = None,
 ) -> bool:
-    """MCM anomaly score with threshold, triggers and SRR decisions; attention weight per factor.
+    """The run's evaluation return, MCM anomaly score with threshold and triggers, attention weight per
+    factor; every SRR decision marked on each panel (an installed edit with the version it installed).
 
     Attention columns are ``attn_<factor>`` in ``train.csv``; with ``factors`` (the names found in the
     run's factor programs) only those are drawn, otherwise every ``attn_*`` column but summary ones
@@ -172,13 +174,24 @@ def plot_run_diagnostics(
     has_attn = bool(attn_cols)
     if not has_mcm and not has_attn:
         return False
-    n = int(has_mcm) + int(has_attn)
-    accepted = [int(d["step"]) for d in decisions if d.get("accepted") and d.get("step") is not None]
+    has_returns = returns is not None and len(returns.steps) > 0
+    n = int(has_mcm) + int(has_attn) + int(has_returns)
+    accepted = [(int(d["step"]), d.get("version")) for d in decisions
+                if d.get("accepted") and d.get("step") is not None]
     rejected = [int(d["step"]) for d in decisions if not d.get("accepted") and d.get("step") is not None]
     with matplotlib.rc_context(STYLE):
         fig, _ = _figure(FIGSIZE[0], 3.2 * n + 0.6)
         axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
         k = 0
+        if has_returns:
+            assert returns is not None
+            ax = axes[k]
+            k += 1
+            ax.plot(returns.steps, returns.returns, color="#d62728", lw=1.6, marker="o", ms=3,
+                    label="evaluation return")
+            ax.set_ylabel("episodic return")
+            ax.set_title("Evaluation return (deterministic policy)")
+            ax.grid(True, alpha=0.3)
         if has_mcm:
             assert score_key is not None
             ax = axes[k]
@@ -213,8 +226,11 @@ def plot_run_diagnostics(
             ax.grid(True, alpha=0.3)
         for ax in axes:
             first = ax is axes[0]
-            for j, s in enumerate(accepted):
-                ax.axvline(s, color="#2ca02c", lw=1.5, label="edit accepted" if j == 0 and first else None)
+            for j, (s, version) in enumerate(accepted):
+                ax.axvline(s, color="#2ca02c", lw=1.5, label="edit installed" if j == 0 and first else None)
+                if first and version is not None:
+                    ax.annotate(f"v{version}", (s, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -12),
+                                textcoords="offset points", color="#2ca02c", fontsize=9)
             for j, s in enumerate(rejected):
                 ax.axvline(s, color="#999999", lw=1.2, ls=":",
                            label="edit rejected" if j == 0 and first else None)

@@ -279,6 +279,8 @@ def fmt_steps_1e5(x: float | None, ref: float | None = None) -> str:
 
 
 def _asym_cell(c: CellStats) -> str:
+    if len(c.seeds) == 1:  # one seed has no spread: "± 0" would claim one
+        return fmt_return(c.asym_mean)
     return f"{fmt_return(c.asym_mean)} ± {fmt_return(c.asym_std, c.asym_mean)}"
 
 
@@ -287,8 +289,10 @@ def _se_cell(c: CellStats) -> str:
         return "n/a"
     if c.se_mean is None:
         return "—"
-    text = f"{fmt_steps_1e5(c.se_mean)} ± {fmt_steps_1e5(c.se_std, c.se_mean)}"
     n = len(c.sample_eff)
+    if n == 1:
+        return fmt_steps_1e5(c.se_mean)
+    text = f"{fmt_steps_1e5(c.se_mean)} ± {fmt_steps_1e5(c.se_std, c.se_mean)}"
     return text if c.reached == n else f"{text} ({c.reached}/{n})"
 
 
@@ -396,9 +400,12 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
             rows_md.append(row)
             rows_csv.append(crow)
         n_seeds = sorted({len(c.seeds) for c in acells})
-        seeds_text = f"{n_seeds[0]} seeds" if len(n_seeds) == 1 else f"{n_seeds[0]}–{n_seeds[-1]} seeds"
-        caption = (f"{algo.upper()} — layout of the paper's {ALGO_TABLE.get(algo, 'Table 2')}; "
-                   f"mean ± std over {seeds_text}.")
+        if n_seeds == [1]:
+            spread = "one seed (no spread to show)"
+        else:
+            spread = "mean ± std over " + (f"{n_seeds[0]} seeds" if len(n_seeds) == 1
+                                          else f"{n_seeds[0]}–{n_seeds[-1]} seeds")
+        caption = f"{algo.upper()} — layout of the paper's {ALGO_TABLE.get(algo, 'Table 2')}; {spread}."
         table = _md_table(header, rows_md)
         write(f"table_{algo}.md", f"{caption}\n\n{table}")
         csv_header = ["method"]
@@ -429,7 +436,8 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                               if (r.algo, r.task, r.method) == (algo, t, m)] for m in methods} for t in tasks}
             fig = out / f"curves_{algo}.png"
             plot_learning_curves(panels, fig,
-                                 title=f"{algo.upper()}: evaluation return, mean ± 1 std over seeds",
+                                 title=f"{algo.upper()}: evaluation return, "
+                                       + ("one seed" if n_seeds == [1] else "mean ± 1 std over seeds"),
                                  panel_titles=titles, method_titles=METHOD_TITLES, methods=methods)
             result.files.append(fig)
             md.append(f"![{algo.upper()} learning curves]({fig.name})\n")
@@ -453,6 +461,13 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
         md += ["## Notes\n"] + [f"- {n}" for n in result.notes] + [""]
     write("report.md", "\n".join(md) + "\n")
     return result
+
+
+def _load_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
 
 
 def _sorted_cells(cells: Sequence[CellStats]) -> list[CellStats]:
@@ -499,6 +514,9 @@ def _run_diagnostic_plots(runs: Sequence[RunRecord], out: Path,
             except (OSError, ValueError):
                 continue
             if isinstance(data, dict):
+                if data.get("step") is None:  # the step the intervention was made at is in its evidence
+                    evidence = _load_json(d.parent / "evidence.json")
+                    data["step"] = evidence.get("step") if isinstance(evidence, dict) else None
                 decisions.append(data)
         factors: set[str] = set()
         for prog in sorted((r.path / "programs").glob("v*.json")):
@@ -510,7 +528,8 @@ def _run_diagnostic_plots(runs: Sequence[RunRecord], out: Path,
         path = out / "runs" / f"{r.task}_{r.algo}_{r.method}_seed{r.seed}.png"
         title = f"{r.task_title} · {r.algo.upper()} · {METHOD_TITLES.get(r.method, r.method)} · seed {r.seed}"
         if plot_run_diagnostics(path, title=title, diagnostics=diagnostics, train_rows=train_rows,
-                                decisions=decisions, factors=sorted(factors) or None):
+                                decisions=decisions, factors=sorted(factors) or None,
+                                returns=Curve(r.eval_steps, r.eval_returns)):
             result.files.append(path)
             made.append((r.run_id, path))
     return made

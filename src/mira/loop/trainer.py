@@ -190,6 +190,7 @@ class Trainer:
                 row_out: dict[str, Any] = {"step": self.step, "episodes": self.episode, "steps_per_s": round(sps, 2),
                            "train_return": self.recent_returns[-1] if self.recent_returns else ""}
                 row_out.update(sums.means())
+                train_log.widen(self._train_fields())  # a new program's factors bring new columns
                 train_log.append(row_out)
                 for k, v in row_out.items():
                     if isinstance(v, float | int) and k != "step":

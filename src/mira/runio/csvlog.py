@@ -21,7 +21,7 @@ def _format(value: Any) -> str:
 
 
 class CsvLog:
-    """A CSV file with a fixed header, written one fsynced row at a time.
+    """A CSV file with a header, written one fsynced row at a time (``widen`` adds columns).
 
     A kill can tear only the last row; opening the log drops such a fragment. ``rewind(step)`` drops
     rows logged after a checkpoint so that a resumed run appends exactly what an uninterrupted run
@@ -48,6 +48,20 @@ class CsvLog:
         if header != self.fields:
             # A newer version may log more columns; keep the file's own header so rows stay aligned.
             self.fields = header
+
+    def widen(self, fields: Sequence[str]) -> None:
+        """Add columns (those not yet in the header), rewriting the file once: earlier rows leave them
+        empty. For figures that appear mid-run, such as the factors of a newly installed program."""
+        new = [f for f in fields if f not in self.fields]
+        if not new:
+            return
+        rows = self.read()
+        self.fields = [*self.fields, *new]
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=self.fields, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        atomic_write_text(self.path, buf.getvalue())
 
     def append(self, row: Mapping[str, Any]) -> None:
         buf = io.StringIO()

@@ -190,9 +190,8 @@ class HarsReward(LookaheadSource):
     def _install(self, factors: FactorSource, recompute: bool = False) -> None:
         """Point the source at ``factors``: names, columns and r̂ (recomputed from the stored transitions
         with ``recompute``), the networks' inputs."""
-        self.factors = factors
-        self.phi_names = list(factors.phi_names)
-        self.aux_names = list(factors.aux_names)
+        self.factors, self.log_fields = factors, _log_fields(self.config, factors)
+        self.phi_names, self.aux_names = list(factors.phi_names), list(factors.aux_names)
         self.memory.install(factors, recompute)
         self.columns, self.decomposed = self.memory.columns, self.memory.decomposed
         self.nets.install(self.phi_names, factors.meta)
