@@ -42,7 +42,8 @@ def states() -> tuple[np.ndarray, np.ndarray]:
     return collect_states(load_task("halfcheetah"), 400, seed=3)
 
 
-def _reframe(tmp_path: Path, replies: list[str], proxy_sign: float, states: tuple[np.ndarray, np.ndarray]):  # type: ignore[no-untyped-def]
+def _reframe(tmp_path: Path, replies: list[str], proxy_sign: float, states: tuple[np.ndarray, np.ndarray],  # type: ignore[no-untyped-def]
+             explain=None):
     card = load_task("halfcheetah")
     script = tmp_path / "replies.jsonl"
     script.write_text("".join(json.dumps({"content": r}) + "\n" for r in replies))
@@ -56,7 +57,7 @@ def _reframe(tmp_path: Path, replies: list[str], proxy_sign: float, states: tupl
 
     reframer = Reframer(SRRConfig(permutations=200), card, backend, action_dim=6)
     return reframer.reframe(tmp_path / "iv", example_program("halfcheetah", 0), _evidence(), obs, values, obs, actions,
-                            proxy, seed=0)
+                            proxy, seed=0, explain=explain)
 
 
 def test_useful_candidate_is_accepted_with_audit_trail(tmp_path: Path, states: tuple[np.ndarray, np.ndarray]) -> None:
@@ -76,6 +77,23 @@ def test_valid_but_harmful_candidate_is_rejected_with_backoff(tmp_path: Path,
     assert not decision.accepted and decision.backoff and not decision.failed
     assert decision.program.version == 0
     assert "proxy efficacy" in decision.reason
+
+
+@pytest.mark.parametrize(("candidate_r2", "accepted"), [(0.90, True), (0.80, False)])
+def test_returns_veto_a_candidate_that_explains_them_worse(tmp_path: Path, states: tuple[np.ndarray, np.ndarray],
+                                                          candidate_r2: float, accepted: bool) -> None:
+    """The proxy test passes either way; a candidate whose out-of-sample R² of the returns falls by more than
+    ``max_r2_loss`` (0.95 → 0.80) is refused, a small loss (0.95 → 0.90) within the tolerance is not."""
+    def explain(program):  # type: ignore[no-untyped-def]
+        return 0.95 if program.version == 0 else candidate_r2
+
+    decision = _reframe(tmp_path, [_reply()], +1.0, states, explain=explain)
+    assert decision.accepted is accepted
+    record = json.loads((tmp_path / "iv" / "candidates.json").read_text())[0]
+    assert record["verdicts"]["efficacy"]["auc"] > 0.9  # the proxy test alone would have accepted it
+    assert record["verdicts"]["returns"]["harms"] is (not accepted)
+    if not accepted:
+        assert decision.backoff and "return explanation" in decision.reason and "0.950 -> 0.800" in decision.reason
 
 
 def test_invalid_reply_is_rejected_before_any_check(tmp_path: Path, states: tuple[np.ndarray, np.ndarray]) -> None:

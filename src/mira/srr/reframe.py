@@ -5,9 +5,12 @@ sandbox realizability (real states, separate process, limits it cannot lift) and
 > 0.5 with permutation p < 0.05 on value-quantile labels, and J_SRR > 0) or, where the stored episodes
 are at hand, return explanation (the candidate's out-of-sample R² of the episodic returns above the
 current program's by ``min_r2_gain``: the test a structural repair can pass, see
-:mod:`mira.shaping.attribution`). The best passing candidate (by R² gain, then J_SRR) is accepted; if
-none passes, SRR abstains and the caller backs off. A failing LLM is a recorded, failed intervention —
-never a crash. Every step is written into the intervention's folder as it happens.
+:mod:`mira.shaping.attribution`). Where the returns are at hand they also veto: a candidate whose R²
+is below the current program's by more than ``max_r2_loss`` is refused whatever its proxy test says
+(the AUC labels come from the current program, the returns from the task). The best passing candidate
+(by R² gain, then J_SRR) is accepted; if none passes, SRR abstains and the caller backs off. A failing
+LLM is a recorded, failed intervention — never a crash. Every step is written into the intervention's
+folder as it happens.
 """
 
 from __future__ import annotations
@@ -196,12 +199,20 @@ class Reframer:
         cand.verdicts["efficacy"] = {**eff.as_dict(), "j_srr": j_srr, "complexity": comp,
                                      "predicted_delta_d": predicted}
         ok = eff.auc > cfg.min_auc and eff.auc_p < cfg.max_p_value and j_srr > 0
-        explains = False
+        explains = harms = False
         if explain is not None and base_r2 is not None and np.isfinite(base_r2):
             r2 = _safe_r2(explain, cand.program)
             gain = r2 - base_r2
             explains = bool(np.isfinite(gain) and gain >= cfg.min_r2_gain)
-            cand.verdicts["returns"] = {"cv_r2": r2, "current_cv_r2": base_r2, "gain": gain, "passed": explains}
+            harms = bool(np.isfinite(gain) and gain < -cfg.max_r2_loss)
+            cand.verdicts["returns"] = {"cv_r2": r2, "current_cv_r2": base_r2, "gain": gain,
+                                        "passed": explains, "harms": harms}
+        if harms:
+            cand.verdicts["rejected"] = (f"return explanation: out-of-sample R² of the returns {base_r2:.3f} -> "
+                                         f"{base_r2 + cand.verdicts['returns']['gain']:.3f} (a loss above "
+                                         f"{cfg.max_r2_loss}): the program would express what the task pays "
+                                         "for worse than the current one")
+            return False, j_srr
         if not (ok or explains):
             cand.verdicts["rejected"] = (f"proxy efficacy: AUC {eff.auc:.3f} (p {eff.auc_p:.3g}), J_SRR {j_srr:.3f} "
                                          f"(needs AUC > {cfg.min_auc}, p < {cfg.max_p_value}, J_SRR > 0)"
