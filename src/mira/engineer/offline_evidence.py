@@ -16,6 +16,7 @@ from typing import Any
 from mira.engineer.factorcode import features_used
 from mira.engineer.srr_prompt import return_is_poor
 from mira.llm.base import LLMRequestRejectedError
+from mira.shaping.attribution import residual_share
 
 OPERATORS: tuple[str, ...] = ("Scale", "Sat", "Gate", "Refactor", "Add", "Prune")
 METRICS: tuple[str, ...] = ("PEG", "TPD", "PVC", "FAP", "RPE")
@@ -162,7 +163,7 @@ def _attribution(raw: Any, features: list[str]) -> tuple[float | None, list[dict
             lo, hi = _opt_float(rng[0]), _opt_float(rng[1])
         share = _opt_float(item.get("share"))
         if share is None and program_r2 is not None:  # an attribution written before shares were
-            share = gain / max(1.0 - program_r2, 1e-12)
+            share = residual_share(gain, program_r2)
         out.append({"feature": name, "form": form, "gain": gain, "share": share,
                     "cv_r2": _opt_float(item.get("cv_r2")),
                     "range": None if lo is None or hi is None else (min(lo, hi), max(lo, hi))})

@@ -40,6 +40,7 @@ from mira.errors import UsageError
 from mira.experiments import metrics as M
 from mira.experiments.grid import order_methods, task_label
 from mira.experiments.plots import Curve, plot_learning_curves, plot_run_diagnostics
+from mira.experiments.runs import read_json
 from mira.runio.atomic import atomic_write_text
 from mira.runio.csvlog import read_csv
 
@@ -463,13 +464,6 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
     return result
 
 
-def _load_json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-
-
 def _sorted_cells(cells: Sequence[CellStats]) -> list[CellStats]:
     algos = _ordered({c.algo for c in cells}, ALGO_ORDER)
     tasks = _ordered({c.task for c in cells}, TASK_ORDER)
@@ -509,14 +503,10 @@ def _run_diagnostic_plots(runs: Sequence[RunRecord], out: Path,
             continue
         decisions = []
         for d in sorted((r.path / "interventions").glob("*/decision.json")):
-            try:
-                data = json.loads(d.read_text(encoding="utf-8"))
-            except (OSError, ValueError):
-                continue
-            if isinstance(data, dict):
+            data = read_json(d)
+            if data is not None:
                 if data.get("step") is None:  # the step the intervention was made at is in its evidence
-                    evidence = _load_json(d.parent / "evidence.json")
-                    data["step"] = evidence.get("step") if isinstance(evidence, dict) else None
+                    data["step"] = (read_json(d.parent / "evidence.json") or {}).get("step")
                 decisions.append(data)
         factors: set[str] = set()
         for prog in sorted((r.path / "programs").glob("v*.json")):

@@ -31,8 +31,8 @@ class OuterLoopConfig:
     repair_min_share: float = 0.75
     """Fraction of what the program leaves unexplained (1 − its out-of-sample R²) that gain must cover.
     A missing factor, a loophole proxy or a misplaced gate leaves a residual that one task feature
-    explains almost entirely (0.94-0.97 measured); a feature that merely correlates with a skill the
-    agent is acquiring explains part of it (0.5-0.67 for gait angles on programs that needed no edit)."""
+    explains almost entirely; a feature that merely correlates with a skill the agent is acquiring (a
+    gait angle) explains part of it (measured shares: bench/RESULTS.md, "Repairing flawed programs")."""
     repair_cycles: int = 3
     """Cycles in a row with such a feature before SRR is called."""
     repair_min_episodes: int = 20

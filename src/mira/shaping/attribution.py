@@ -49,6 +49,11 @@ def cv_r2(sums: np.ndarray, returns: np.ndarray, ridge: float, folds: int = 5) -
     return 1.0 - sse / (n * var)
 
 
+def residual_share(gain: float, program_r2: float) -> float:
+    """``gain`` as a fraction of what the program leaves unexplained, ``1 − program_r2``."""
+    return gain / max(1.0 - program_r2, 1e-12)
+
+
 @dataclass
 class FeatureGain:
     """How much better the returns are explained with one card feature added, in one shape."""
@@ -98,6 +103,6 @@ def attribute_returns(program_sums: np.ndarray, returns: np.ndarray, feature_sum
         for form, col in by_form.items():
             r2 = cv_r2(np.concatenate([program_sums, col[:, None]], axis=1), returns, ridge, folds)
             if np.isfinite(r2) and np.isfinite(base):
-                gains.append(FeatureGain(name, form, r2, r2 - base, (r2 - base) / max(1.0 - base, 1e-12)))
+                gains.append(FeatureGain(name, form, r2, r2 - base, residual_share(r2 - base, base)))
     gains.sort(key=lambda g: -g.gain)
     return ReturnAttribution(base, int(returns.shape[0]), gains, dict(ranges or {}))

@@ -34,6 +34,6 @@ class SRRConfig:
     a program that expresses what the current one misses; the returns themselves can."""
     max_r2_loss: float = 0.05
     """... and a candidate fails, whatever its proxy test, when its out-of-sample R² of the stored returns
-    is below the current program's by more than this: it would express what the task pays for worse
-    (on HumanoidStandup a Refactor of height into height × uprightness passed the AUC test at R² 0.98 →
-    0.77, and the return halved)."""
+    is below the current program's by more than this: it would express what the task pays for worse,
+    and the AUC test, whose labels come from the current program, cannot see that (the case that
+    motivated it: bench/RESULTS.md, HumanoidStandup)."""
