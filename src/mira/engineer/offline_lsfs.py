@@ -1,9 +1,10 @@
 """LSFS for the offline engineer: the initial factor program, synthesised by rules from the task card.
 
 For HalfCheetah and HumanoidStandup it returns the paper's own initial sets (section 5.3), so the
-case studies can be reproduced without an LLM; for any other card it matches the card's named
-features (names, units, docs) to four roles — progress, posture, stability, effort — the way a
-reward engineer would sketch a first draft.
+case studies can be reproduced without an LLM (HumanoidStandup's without the paper's constant survival
+term, which only the decomposition's bias can weigh and the checker warns about); for any other card
+it matches the card's named features (names, units, docs) to four roles — progress, posture,
+stability, effort — the way a reward engineer would sketch a first draft.
 
 Constants (chosen so that, over the states a policy visits, the factors are of comparable size —
 O(1) to O(10) — and none drowns the others in the potential's attention):
@@ -11,8 +12,7 @@ O(1) to O(10) — and none drowns the others in the potential's attention):
 * HalfCheetah: ``r_vel = v_x`` (running speeds 0–12 m/s); ``r_upright = -1.0 θ²`` (−10 when flipped,
   θ ≈ π); ``r_stable = -0.05 ω²`` (−1.25 at a brisk 5 rad/s, −20 in a somersault at 20 rad/s);
   ``r_ctrl = -0.1 Σa²`` (the environment's own control-cost weight; ≥ −0.6 for 6 actions in [−1, 1]).
-* HumanoidStandup: ``r_height = 1.0 z`` (0.1 lying → 1.4 m standing); ``r_survival = 0.2``
-  (a constant, as in the paper; deliberately smaller than the height range);
+* HumanoidStandup: ``r_height = 1.0 z`` (0.1 lying → 1.4 m standing);
   ``r_stable = -0.05 (v² + ω²)`` over the torso's 3 linear and 3 angular velocities (−0.65 for
   2 m/s and 3 rad/s); ``r_ctrl = -0.1 Σa²`` (≥ −1.7 for 17 actions).
 """
@@ -30,7 +30,6 @@ C_UPRIGHT = 1.0
 C_STABLE = 0.05
 C_CTRL = 0.1
 C_HEIGHT = 1.0
-C_SURVIVAL = 0.2
 #: Squared-rate magnitude per stability term used to state a range hint ((≈7 rad/s)²).
 STABLE_TERM_BOUND = 50.0
 
@@ -157,11 +156,16 @@ def halfcheetah_program(action_dim: int) -> list[dict[str, Any]]:
     ]
 
 
+STANDUP_RATIONALE = (
+    "The paper's initial set for this task (section 5.3.2) less its survival constant c2: a per-step "
+    "constant carries no information about the state or the action, and the decomposition's bias already "
+    "fits it."
+)
 _STANDUP_RATES = ["x_velocity", "y_velocity", "z_velocity", "roll_rate", "pitch_rate", "yaw_rate"]
 
 
 def humanoidstandup_program(action_dim: int) -> list[dict[str, Any]]:
-    """The paper's HumanoidStandup F(0) = {r_height, r_survival, r_stable | r_ctrl} (section 5.3.2)."""
+    """The paper's HumanoidStandup F(0) less its survival constant: {r_height, r_stable | r_ctrl} (5.3.2)."""
     return [
         make_factor(
             "r_height",
@@ -170,14 +174,6 @@ def humanoidstandup_program(action_dim: int) -> list[dict[str, Any]]:
             doc="height of the torso above the floor (upward progress)",
             units="m",
             range_hint="[0, 1.5]",
-        ),
-        make_factor(
-            "r_survival",
-            "PHI",
-            f"{num(C_SURVIVAL)} * np.ones_like(s.torso_height)",
-            doc="constant survival bonus per step",
-            units="1",
-            range_hint="[0.2, 0.2]",
         ),
         make_factor(
             "r_stable",
@@ -381,7 +377,8 @@ def synthesize(context: dict[str, Any]) -> dict[str, Any]:
     if key == "halfcheetah" and _has(features, "x_velocity", "pitch", "pitch_rate"):
         factors = halfcheetah_program(action_dim)
     elif key == "humanoidstandup" and _has(features, "torso_height", *_STANDUP_RATES):
-        factors = humanoidstandup_program(action_dim)
+        return {"task": task, "version": 0, "factors": humanoidstandup_program(action_dim),
+                "rationale": STANDUP_RATIONALE, "engineer": OFFLINE_ENGINEER_LABEL}
     else:
         factors, notes = generic_program(features, action_dim, task, description)
         return {"task": task, "version": 0, "factors": factors, "rationale": " ".join(notes),

@@ -261,11 +261,15 @@ def prune(ev: RequestContext, target: dict[str, Any], why: str) -> tuple[dict, l
 
 
 def _phi_scale(ev: RequestContext) -> float:
-    """Typical magnitude of the Φ-factors (median of range-hint bounds), for commensurate additions."""
+    """Typical magnitude of the Φ-factors (the lower median of range-hint bounds), for commensurate additions.
+
+    The lower median, so that with two factors an addition is sized by the smaller one, never drowning
+    the progress term it is meant to help.
+    """
     mags = sorted(m for m in (_magnitude(f) for f in _phi(ev)) if m is not None and m > 0)
     if not mags:
         return 1.0
-    mid = mags[len(mags) // 2] if len(mags) % 2 else 0.5 * (mags[len(mags) // 2 - 1] + mags[len(mags) // 2])
+    mid = mags[(len(mags) - 1) // 2]
     return float(f"{min(max(mid, 0.1), 10.0):.2g}")
 
 
