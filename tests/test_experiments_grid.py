@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import tempfile
 import json
 from pathlib import Path
 
@@ -232,3 +233,45 @@ def test_dry_run_estimates_the_time_from_the_speeds_runs_here_logged(tmp_path: P
     # dense: 300 steps left of seed 0 and 600 of seed 1 at 1 step/s = 900 s, on 2 workers = 0.125 h.
     assert "estimate: 0.1 h with 2 worker(s)" in buf.getvalue()
     assert "not counted: halfcheetah/sac/sparse" in buf.getvalue()
+
+
+def test_dry_run_probes_what_no_run_here_has_timed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A (task, algo, method) with logged speeds is not probed; the others are, once each, and a failed
+    probe leaves its runs out of the estimate with the reason printed."""
+    from mira.experiments import estimate, sweep
+
+    grid = SweepGrid(["halfcheetah"], ["dense", "sparse", "vib"], ["sac"], [0, 1], 3600, [])
+    run = RunSpec("halfcheetah", "dense", "sac", 0, 3600).run_dir(tmp_path)
+    _fake_run(run, status="running", step=0, steps=3600, checkpoint=False)
+    (run / "train.csv").write_text("step,steps_per_s\n100,1.0\n")
+    asked: list[str] = []
+
+    def fake_probe(spec: RunSpec) -> estimate.ProbeResult:
+        asked.append(spec.method)
+        if spec.method == "vib":
+            return estimate.ProbeResult(estimate.speed_key(spec), None, "boom")
+        return estimate.ProbeResult(estimate.speed_key(spec), 2.0)
+
+    monkeypatch.setattr(sweep, "probe_speed", fake_probe)
+    buf = io.StringIO()
+    dry_run(grid, tmp_path, stream=buf, workers=2, probe=True)
+    text = buf.getvalue()
+    assert sorted(asked) == ["sparse", "vib"]
+    assert "probing halfcheetah/sac/sparse" in text and "2.0 steps/s" in text and "failed (boom)" in text
+    # dense: 2 × 3600 steps at 1 step/s; sparse: 2 × 3600 at 2 steps/s; 10800 s on 2 workers = 1.5 h.
+    assert "estimate: 1.5 h with 2 worker(s), at the steps/s of the runs here and of the probes" in text
+    assert "not counted: halfcheetah/sac/vib" in text
+
+
+def test_a_probe_times_a_real_short_run_and_reports_a_failing_one(tmp_path: Path) -> None:
+    from mira.experiments.estimate import probe_command, probe_speed
+
+    spec = RunSpec("halfcheetah", "sparse", "sac", 0, 50_000, ["--threads", "1", "--learning-starts", "9"])
+    cmd = probe_command(spec, tmp_path / "r", warmup=300, measured=200)
+    # The probe's budget comes after the grid's train args, so it wins.
+    assert cmd.index("--learning-starts", cmd.index("9")) > cmd.index("9")
+    result = probe_speed(spec, warmup=300, measured=200)
+    assert result.steps_per_s is not None and result.steps_per_s > 0, result.error
+    bad = probe_speed(RunSpec("nosuchtask", "sparse", "sac", 0, 600), warmup=300, measured=200)
+    assert bad.steps_per_s is None and "nosuchtask" in bad.error
+    assert not list(Path(tempfile.gettempdir()).glob("mira-probe-*/run/config.json"))

@@ -61,7 +61,11 @@ def add_sweep_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--train-args", default=None, metavar='"FLAGS"',
                    help='extra `mira train` flags for every run, e.g. "--eval-episodes 3 --hidden 64,64" '
                         '(a lone flag needs the = form: --train-args="--quiet")')
-    p.add_argument("--dry-run", action="store_true", help="print what each run would do and exit")
+    p.add_argument("--dry-run", action="store_true",
+                   help="print what each run would do and how long the sweep would take, and exit")
+    p.add_argument("--no-probe", action="store_true",
+                   help="with --dry-run: estimate only from the speeds runs under --out logged, without timing a "
+                        "short run (2,500 steps) of each task/algo/method they have not")
     p.add_argument("--progress-every", type=_positive_int, default=30, help="seconds between progress lines")
     p.set_defaults(func=cmd_sweep)
     return p
@@ -102,7 +106,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     }
     grid, settings = build_grid(preset=args.preset, file=args.file, overrides=overrides)
     if args.dry_run:
-        dry_run(grid, args.out, workers=settings.get("workers"))
+        dry_run(grid, args.out, workers=settings.get("workers"), probe=not args.no_probe)
         return 0
     options = SweepOptions(workers=settings.get("workers"), backend=settings.get("backend", "pool"),
                            address=settings.get("address"),

@@ -47,10 +47,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-import numpy as np
-
 from mira.errors import UsageError
-from mira.experiments.grid import RunSpec, SweepGrid, task_label
+from mira.experiments.estimate import (
+    PROBE_MEASURED_STEPS,
+    PROBE_WARMUP_STEPS,
+    SpeedKey,
+    measured_speeds,
+    probe_speed,
+    speed_key,
+)
+from mira.experiments.grid import RunSpec, SweepGrid
 from mira.experiments.runs import (
     STATE_DIR,
     USAGE_EXIT,
@@ -263,24 +269,14 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def measured_speeds(out: Path, specs: list[RunSpec]) -> dict[tuple[str, str, str], float]:
-    """Median steps/s of each (task, algo, method) over the runs under ``out`` that have logged any."""
-    from mira.runio.csvlog import read_csv
-
-    seen: dict[tuple[str, str, str], list[float]] = {}
-    for spec in specs:
-        log = spec.run_dir(out) / "train.csv"
-        if log.is_file():
-            rates = [float(r["steps_per_s"]) for r in read_csv(log) if r.get("steps_per_s")]
-            seen.setdefault((task_label(spec.task), spec.algo, spec.method), []).extend(r for r in rates if r > 0)
-    return {key: float(np.median(v)) for key, v in seen.items() if v}
-
-
 def dry_run(grid: SweepGrid, out: str | Path, stream: IO[str] | None = None,
-            workers: int | None = None) -> list[tuple[RunSpec, Plan]]:
-    """Print (and return) what a sweep would do with each run, and how long it would take at the speeds
-    the runs already under ``out`` logged (one estimate per method; none without a timed run); writes
-    nothing."""
+            workers: int | None = None, probe: bool = False) -> list[tuple[RunSpec, Plan]]:
+    """Print (and return) what a sweep would do with each run, and how long it would take.
+
+    The speed of each (task, algo, method) is what the runs already under ``out`` logged; with
+    ``probe``, one the runs here have not logged is measured by a short real run in a temporary
+    directory (:mod:`mira.experiments.estimate`). Writes nothing under ``out``.
+    """
     stream = stream or sys.stdout
     out = Path(out)
     plans = [(spec, plan_run(spec, out)) for spec in grid.runs()]
@@ -289,26 +285,43 @@ def dry_run(grid: SweepGrid, out: str | Path, stream: IO[str] | None = None,
         print(f"{plan.action:8s} {spec.run_id}  ({plan.reason}){cmd}", file=stream)
     counts = {a: sum(p.action == a for _, p in plans) for a in ("start", "resume", "skip", "conflict")}
     print(f"{len(plans)} runs: " + ", ".join(f"{n} {a}" for a, n in counts.items()), file=stream)
+    todo = [(spec, plan) for spec, plan in plans if plan.action in ("start", "resume")]
     speeds = measured_speeds(out, [spec for spec, _ in plans])
+    probed: set[SpeedKey] = set()
+    if probe:
+        first_of: dict[SpeedKey, RunSpec] = {}
+        for spec, _ in todo:
+            first_of.setdefault(speed_key(spec), spec)
+        for key, spec in first_of.items():
+            if key in speeds:
+                continue
+            print(f"probing {'/'.join(key)}: {PROBE_WARMUP_STEPS + PROBE_MEASURED_STEPS} steps ...", end=" ",
+                  file=stream, flush=True)
+            result = probe_speed(spec)
+            if result.steps_per_s is None:
+                print(f"failed ({result.error})", file=stream, flush=True)
+                continue
+            speeds[key] = result.steps_per_s
+            probed.add(key)
+            print(f"{result.steps_per_s:.1f} steps/s", file=stream, flush=True)
     seconds, unknown = 0.0, set()
-    for spec, plan in plans:
-        if plan.action not in ("start", "resume"):
-            continue
+    for spec, plan in todo:
         status = read_json(spec.run_dir(out) / "status.json") or {} if plan.action == "resume" else {}
         done = int(status.get("step", 0))
-        key = (task_label(spec.task), spec.algo, spec.method)
+        key = speed_key(spec)
         if key in speeds:
             seconds += max(0, spec.steps - done) / speeds[key]
         else:
             unknown.add("/".join(key))
     parallel = max(1, workers or 1)
+    source = ("the steps/s of the runs here and of the probes" if probed else "the steps/s the runs here logged")
     if seconds:
-        print(f"estimate: {seconds / parallel / 3600:.1f} h with {parallel} worker(s), at the steps/s the runs here "
-              "logged (evaluations excluded)" + (f"; not counted: {', '.join(sorted(unknown))}" if unknown else ""),
+        print(f"estimate: {seconds / parallel / 3600:.1f} h with {parallel} worker(s), at {source} "
+              "(evaluations excluded)" + (f"; not counted: {', '.join(sorted(unknown))}" if unknown else ""),
               file=stream)
     elif unknown:
-        print("estimate: none, no run here has logged its speed yet (time one with a few thousand steps first)",
-              file=stream)
+        hint = "" if probe else " (without --no-probe a short run of each measures it)"
+        print(f"estimate: none, no run here has logged its speed yet{hint}", file=stream)
     return plans
 
 
