@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 import io
-import tempfile
 import json
+import tempfile
 from pathlib import Path
 
 import pytest
