@@ -59,6 +59,35 @@ def test_episode_sum_regression_recovers_a_linear_per_step_reward() -> None:
     assert reg.r2 == pytest.approx(1.0, abs=1e-8)
 
 
+def test_selected_ridge_keeps_a_large_mean_small_spread_factor_at_its_weight() -> None:
+    """Returns paying ``v − c`` per step, where the cost ``c`` is large on every step, varies little
+    between episodes and moves with the speed (a control cost), on episodes of one length (so the bias
+    is a constant column): a fixed ridge of one pseudo-episode shrinks the near-collinear weights against
+    the evidence and turns the cost into a bonus; the ridge chosen by leave-one-out recovers the reward."""
+    rng = np.random.default_rng(0)
+    rows = []
+    for _ in range(100):
+        speed = rng.uniform(0.0, 5.0)
+        v = speed + rng.normal(0.0, 1.0, 1000)
+        c = 0.4 + 0.02 * speed + rng.normal(0.0, 0.05, 1000)
+        rows.append((np.array([v.sum(), -c.sum(), 1000.0]), float((v - c).sum())))
+    fits = {}
+    for select in (False, True):
+        reg = EpisodeSumRegression(3, ridge=1.0, centred=True, select=select)
+        for x, ret in rows:
+            reg.add(x, ret, 1000.0)
+        fits[select] = reg.fit()
+        if select:
+            assert reg.chosen_ridge < 1e-2
+    np.testing.assert_allclose(fits[True], [1.0, 1.0, 0.0], atol=0.05)
+    assert fits[False][1] < 0.5  # a fixed ridge: the cost's weight pulled far from 1
+    few = EpisodeSumRegression(3, ridge=1.0, centred=True, select=True)
+    for x, ret in rows[:3]:
+        few.add(x, ret, 1000.0)
+    few.fit()
+    assert np.all(np.isfinite(few.theta))
+
+
 def test_nonneg_fit_never_turns_a_factor_around_and_keeps_the_bias_free() -> None:
     """Returns that reward ``2·a − b`` over factors declared as ``a`` and ``b``: unconstrained, the fit
     gives ``b`` weight −1; constrained (the factors' weights ≥ 0) it drops ``b`` and keeps ``a`` and a

@@ -23,9 +23,21 @@ import numpy as np
 
 
 class EpisodeSumRegression:
-    """Ridge regression of episodic returns on per-episode summed features, refitted in closed form."""
+    """Ridge regression of episodic returns on per-episode summed features, refitted in closed form.
 
-    def __init__(self, dim: int, *, ridge: float = 1.0, max_episodes: int = 5_000) -> None:
+    The ridge is in standardised units: ``ridge`` pseudo-episodes, each feature's penalty scaled by its
+    mean square over the stored episodes or, with ``centred``, by its variance across them. Centred, a
+    feature with a large mean and little spread (a control cost, the per-step bias on fixed-length
+    episodes) is penalised by what its spread says, not by its size, so the fit is not pulled away
+    from the weights the returns identify. With ``select``, each fit takes the ridge among ``ridge · 10⁻ᵏ``
+    (k = 0 … 6) with the smallest leave-one-episode-out error (closed form): strong while a handful of
+    episodes leave the weights undetermined, weak once many pin them down, as the returns decide.
+    """
+
+    SELECT_DECADES = 7
+
+    def __init__(self, dim: int, *, ridge: float = 1.0, max_episodes: int = 5_000, centred: bool = False,
+                 select: bool = False) -> None:
         if dim <= 0:
             raise ValueError(f"feature dimension must be positive, not {dim}")
         if ridge < 0:
@@ -34,6 +46,10 @@ class EpisodeSumRegression:
             raise ValueError(f"max_episodes must be positive, not {max_episodes}")
         self.dim = int(dim)
         self.ridge = float(ridge)
+        self.centred = bool(centred)
+        self.select = bool(select)
+        self.chosen_ridge = float(ridge)
+        """The ridge of the last fit (``ridge`` itself unless ``select``)."""
         self.max_episodes = int(max_episodes)
         self.sums = np.zeros((0, self.dim), dtype=np.float64)
         self.returns = np.zeros(0, dtype=np.float64)
@@ -48,10 +64,10 @@ class EpisodeSumRegression:
         """Fraction of the variance of the stored returns the last fit explains."""
 
     @classmethod
-    def of(cls, sums: np.ndarray, returns: np.ndarray, lengths: np.ndarray, *, ridge: float = 1.0
-           ) -> EpisodeSumRegression:
+    def of(cls, sums: np.ndarray, returns: np.ndarray, lengths: np.ndarray, *, ridge: float = 1.0,
+           centred: bool = False, select: bool = False) -> EpisodeSumRegression:
         """A regression holding the given episodes (summed features ``[E, dim]``, returns, lengths)."""
-        reg = cls(sums.shape[1], ridge=ridge, max_episodes=max(1, sums.shape[0]))
+        reg = cls(sums.shape[1], ridge=ridge, max_episodes=max(1, sums.shape[0]), centred=centred, select=select)
         n = sums.shape[0]
         reg.sums = np.asarray(sums, dtype=np.float64).copy()
         reg.returns = np.asarray(returns, dtype=np.float64).reshape(n).copy()
@@ -85,8 +101,10 @@ class EpisodeSumRegression:
         a = x.T @ x
         diag = np.diag(a).copy()
         jitter = 1e-10 * max(float(diag.mean()), 1e-12)
-        a_reg = a + np.diag(self.ridge * diag / n + jitter)
+        scale = x.var(axis=0) if self.centred else diag / n
         b = x.T @ r
+        self.chosen_ridge = self._loo_ridge(x, r, a, b, scale, jitter) if self.select and n > 2 else self.ridge
+        a_reg = a + np.diag(self.chosen_ridge * scale + jitter)
         try:
             theta = np.linalg.solve(a_reg, b) if nonneg is None else _constrained(a_reg, b, nonneg)
         except np.linalg.LinAlgError:
@@ -101,6 +119,23 @@ class EpisodeSumRegression:
         self.theta = theta
         self.fits += 1
         return theta
+
+    def _loo_ridge(self, x: np.ndarray, r: np.ndarray, a: np.ndarray, b: np.ndarray, scale: np.ndarray,
+                   jitter: float) -> float:
+        """The grid's ridge with the smallest leave-one-out squared error: eᵢ / (1 − hᵢᵢ) per episode."""
+        best, best_err = self.ridge, float("inf")
+        for k in range(self.SELECT_DECADES):
+            lam = self.ridge * 10.0**-k
+            try:
+                inv = np.linalg.inv(a + np.diag(lam * scale + jitter))
+            except np.linalg.LinAlgError:
+                continue
+            h = np.einsum("ij,jk,ik->i", x, inv, x)
+            loo = (r - x @ (inv @ b)) / np.maximum(1.0 - h, 1e-9)
+            err = float(np.mean(loo**2))
+            if np.isfinite(err) and err < best_err:
+                best, best_err = lam, err
+        return best
 
     def state_dict(self) -> dict[str, Any]:
         n = self.count

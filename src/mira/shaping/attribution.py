@@ -32,7 +32,8 @@ FORMS = ("value", "neg_square")
 """The shapes a feature is tried in: ``s.f`` and ``-(s.f ** 2)``."""
 
 
-def cv_r2(sums: np.ndarray, returns: np.ndarray, ridge: float, folds: int = 5) -> float:
+def cv_r2(sums: np.ndarray, returns: np.ndarray, ridge: float, folds: int = 5, centred: bool = True,
+          select: bool = True) -> float:
     """Out-of-sample R² of returns ``[E]`` regressed on per-episode summed features ``[E, D]``: episodes
     are dealt into ``folds`` folds round-robin (so every fold spans the whole run), each fold predicted
     by a fit on the others. NaN with fewer than ``2 · folds`` episodes or returns without variance."""
@@ -44,7 +45,8 @@ def cv_r2(sums: np.ndarray, returns: np.ndarray, ridge: float, folds: int = 5) -
     sse = 0.0
     for k in range(folds):
         train, test = fold != k, fold == k
-        theta = EpisodeSumRegression.of(sums[train], returns[train], np.ones(int(train.sum())), ridge=ridge).fit()
+        theta = EpisodeSumRegression.of(sums[train], returns[train], np.ones(int(train.sum())), ridge=ridge,
+                                        centred=centred, select=select).fit()
         sse += float(np.sum((returns[test] - sums[test] @ theta) ** 2))
     return 1.0 - sse / (n * var)
 
@@ -93,15 +95,15 @@ class ReturnAttribution:
 
 
 def attribute_returns(program_sums: np.ndarray, returns: np.ndarray, feature_sums: dict[str, dict[str, np.ndarray]],
-                      ridge: float, folds: int = 5, ranges: dict[str, tuple[float, float]] | None = None
-                      ) -> ReturnAttribution:
+                      ridge: float, folds: int = 5, ranges: dict[str, tuple[float, float]] | None = None,
+                      centred: bool = True, select: bool = True) -> ReturnAttribution:
     """The attribution from the program's per-episode head features ``[E, D]`` (bias included), the returns
     ``[E]`` and each feature's per-episode sums in each form (``feature_sums[name][form]``, ``[E]``)."""
-    base = cv_r2(program_sums, returns, ridge, folds)
+    base = cv_r2(program_sums, returns, ridge, folds, centred, select)
     gains = []
     for name, by_form in feature_sums.items():
         for form, col in by_form.items():
-            r2 = cv_r2(np.concatenate([program_sums, col[:, None]], axis=1), returns, ridge, folds)
+            r2 = cv_r2(np.concatenate([program_sums, col[:, None]], axis=1), returns, ridge, folds, centred, select)
             if np.isfinite(r2) and np.isfinite(base):
                 gains.append(FeatureGain(name, form, r2, r2 - base, residual_share(r2 - base, base)))
     gains.sort(key=lambda g: -g.gain)

@@ -7,7 +7,7 @@ program:
     r̂(s, a, s′) = Σ_{i ∈ PHI} w_i f_i(s′) + Σ_{j ∈ AUX} u_j f_j(s, a) + b,
 
 fitted in closed form so that every stored episode's sum of r̂ matches its episodic return
-(:class:`~mira.rewards.decomposition.EpisodeSumRegression`, ridge in standardised units), refitted
+(:class:`~mira.rewards.decomposition.EpisodeSumRegression`, ridge scaled by each feature's spread), refitted
 after every episode. PHI factors are read at s′ by default because a MuJoCo task's reward is earned
 *over* the step (HalfCheetah's is the displacement during it, which the velocity at s′ tracks far
 better than the velocity at s; ``phi_at`` chooses). The head only ever sees episodic returns; the dense reward is
@@ -66,6 +66,8 @@ class DecompositionHead:
         self.phi_names, self.aux_names = list(phi_names), list(aux_names)
         self.names = feature_names(self.phi_names, self.aux_names, config.decompose_phi_at)
         self.regression = EpisodeSumRegression(len(self.names), ridge=config.decompose_ridge,
+                                               centred=config.decompose_ridge_centred,
+                                               select=config.decompose_ridge_select,
                                                max_episodes=config.decompose_max_episodes)
         self.weights = np.zeros(len(self.names), dtype=np.float64)
         """The current (w, u, b): zero until ``decompose_min_episodes`` episodes have been fitted."""
@@ -109,7 +111,8 @@ class DecompositionHead:
                 "shares": dict(zip(self.names[:-1], map(float, self.shares), strict=True)),
                 "r2": self.regression.r2, "per_step_residual_rms": float(np.sqrt(self.regression.loss))
                 if np.isfinite(self.regression.loss) else float("nan"),
-                "episodes": self.regression.count, "phi_at": self.config.decompose_phi_at}
+                "episodes": self.regression.count, "phi_at": self.config.decompose_phi_at,
+                "ridge": self.regression.chosen_ridge}
 
     def state_dict(self) -> dict[str, Any]:
         return {"names": list(self.names), "regression": self.regression.state_dict(),
