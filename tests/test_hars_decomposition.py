@@ -9,6 +9,7 @@ import torch
 from mira.replay import ReplayBuffer
 from mira.rewards.decomposition import EpisodeSumRegression
 from mira.shaping.config import HarsConfig
+from mira.shaping.decomposition import DecompositionHead
 from mira.shaping.factors import FunctionFactorSource
 from mira.shaping.source import HarsReward
 from mira.shaping.testing import make_hars
@@ -86,6 +87,9 @@ def test_selected_ridge_keeps_a_large_mean_small_spread_factor_at_its_weight() -
         few.add(x, ret, 1000.0)
     few.fit()
     assert np.all(np.isfinite(few.theta))
+    head = DecompositionHead(HarsConfig(decompose_ridge_select=True, decompose_ridge_centred=True), ["v"], ["c"])
+    assert head.regression.select and head.regression.centred
+    assert not DecompositionHead(HarsConfig(), ["v"], ["c"]).regression.select  # the default: a fixed ridge
 
 
 def test_nonneg_fit_never_turns_a_factor_around_and_keeps_the_bias_free() -> None:

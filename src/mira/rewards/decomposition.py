@@ -101,10 +101,11 @@ class EpisodeSumRegression:
         a = x.T @ x
         diag = np.diag(a).copy()
         jitter = 1e-10 * max(float(diag.mean()), 1e-12)
-        scale = x.var(axis=0) if self.centred else diag / n
+        # (ridge · diag) / n in that order when uncentred: the earlier form, bit for bit.
+        scale, per = (x.var(axis=0), 1.0) if self.centred else (diag, float(n))
         b = x.T @ r
-        self.chosen_ridge = self._loo_ridge(x, r, a, b, scale, jitter) if self.select and n > 2 else self.ridge
-        a_reg = a + np.diag(self.chosen_ridge * scale + jitter)
+        self.chosen_ridge = self._loo_ridge(x, r, a, b, scale / per, jitter) if self.select and n > 2 else self.ridge
+        a_reg = a + np.diag(self.chosen_ridge * scale / per + jitter)
         try:
             theta = np.linalg.solve(a_reg, b) if nonneg is None else _constrained(a_reg, b, nonneg)
         except np.linalg.LinAlgError:

@@ -32,8 +32,8 @@ FORMS = ("value", "neg_square")
 """The shapes a feature is tried in: ``s.f`` and ``-(s.f ** 2)``."""
 
 
-def cv_r2(sums: np.ndarray, returns: np.ndarray, ridge: float, folds: int = 5, centred: bool = True,
-          select: bool = True) -> float:
+def cv_r2(sums: np.ndarray, returns: np.ndarray, ridge: float, folds: int = 5, centred: bool = False,
+          select: bool = False) -> float:
     """Out-of-sample R² of returns ``[E]`` regressed on per-episode summed features ``[E, D]``: episodes
     are dealt into ``folds`` folds round-robin (so every fold spans the whole run), each fold predicted
     by a fit on the others. NaN with fewer than ``2 · folds`` episodes or returns without variance."""
@@ -96,7 +96,7 @@ class ReturnAttribution:
 
 def attribute_returns(program_sums: np.ndarray, returns: np.ndarray, feature_sums: dict[str, dict[str, np.ndarray]],
                       ridge: float, folds: int = 5, ranges: dict[str, tuple[float, float]] | None = None,
-                      centred: bool = True, select: bool = True) -> ReturnAttribution:
+                      centred: bool = False, select: bool = False) -> ReturnAttribution:
     """The attribution from the program's per-episode head features ``[E, D]`` (bias included), the returns
     ``[E]`` and each feature's per-episode sums in each form (``feature_sums[name][form]``, ``[E]``)."""
     base = cv_r2(program_sums, returns, ridge, folds, centred, select)

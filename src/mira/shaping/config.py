@@ -30,13 +30,16 @@ class HarsConfig:
     earned into), ``state`` (s) or ``both``. AUX factors are always read at (s, a)."""
     decompose_ridge: float = 1.0
     """Ridge weight of the head's episode-sum regression, in standardised units (one pseudo-episode)."""
-    decompose_ridge_select: bool = True
+    decompose_ridge_select: bool = False
     """Choose the ridge at each fit among ``decompose_ridge · 10⁻ᵏ`` (k = 0 … 6) by leave-one-episode-out
-    error, so that it fades as the episodes pin the weights down. Off: ``decompose_ridge`` throughout."""
-    decompose_ridge_centred: bool = True
-    """Scale each feature's ridge penalty by its variance across episodes rather than its mean square.
-    Uncentred (the earlier form), a feature with a large mean and little spread — the control cost, the
-    bias — is shrunk against the evidence and its weight pushed to the wrong sign (bench/RESULTS.md)."""
+    error, so that it fades as the episodes pin the weights down. With ``decompose_ridge_centred`` the
+    head then recovers the environment's own reward weights from the returns; the fixed ridge shrinks
+    near-collinear weights (a control cost turns into a bonus) yet has learned as well or better at the
+    budgets measured, so it stays the default until runs show otherwise (bench/RESULTS.md)."""
+    decompose_ridge_centred: bool = False
+    """Scale each feature's ridge penalty by its variance across episodes rather than its mean square
+    (uncentred, a feature with a large mean and little spread — a control cost, the bias — is shrunk
+    by its size, not by the evidence). Use with ``decompose_ridge_select``."""
     decompose_nonneg: bool = False
     """Constrain the head's factor weights to w ≥ 0 (the bias stays free): a weight can scale a factor or
     drop it, never turn what the program declares a penalty into a bonus. Off: unconstrained ridge."""

@@ -7,7 +7,7 @@ program:
     r̂(s, a, s′) = Σ_{i ∈ PHI} w_i f_i(s′) + Σ_{j ∈ AUX} u_j f_j(s, a) + b,
 
 fitted in closed form so that every stored episode's sum of r̂ matches its episodic return
-(:class:`~mira.rewards.decomposition.EpisodeSumRegression`, ridge scaled by each feature's spread), refitted
+(:class:`~mira.rewards.decomposition.EpisodeSumRegression`, ridge in standardised units), refitted
 after every episode. PHI factors are read at s′ by default because a MuJoCo task's reward is earned
 *over* the step (HalfCheetah's is the displacement during it, which the velocity at s′ tracks far
 better than the velocity at s; ``phi_at`` chooses). The head only ever sees episodic returns; the dense reward is
