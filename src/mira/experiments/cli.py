@@ -65,7 +65,7 @@ def add_sweep_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="print what each run would do and how long the sweep would take, and exit")
     p.add_argument("--no-probe", action="store_true",
                    help="with --dry-run: estimate only from the speeds runs under --out logged, without timing a "
-                        "short run (2,500 steps) of each task/algo/method they have not")
+                        "short run of each task/algo/method they have not")
     p.add_argument("--progress-every", type=_positive_int, default=30, help="seconds between progress lines")
     p.set_defaults(func=cmd_sweep)
     return p

@@ -49,8 +49,8 @@ class StructuralCheck:
         sums, ranges = memory.feature_sums(rows, self.card.feature_values)
         hc = self.hars.config
         self.latest = attribute_returns(memory.head_sums(rows), returns, sums, hc.decompose_ridge,
-                                        cfg.repair_folds, ranges, hc.decompose_ridge_centred,
-                                        hc.decompose_ridge_select)
+                                        cfg.repair_folds, ranges,
+                                        centred=hc.decompose_ridge_centred, select=hc.decompose_ridge_select)
         best = self.latest.best
         counts = best is not None and best.gain >= cfg.repair_min_gain and best.share >= cfg.repair_min_share
         self.streak = self.streak + 1 if counts else 0
@@ -74,7 +74,8 @@ class StructuralCheck:
         rows, returns = found
         hc = self.hars.config
         return cv_r2(self.hars.memory.head_sums(rows, factors), returns, hc.decompose_ridge,
-                     self.config.repair_folds, hc.decompose_ridge_centred, hc.decompose_ridge_select)
+                     self.config.repair_folds,
+                     centred=hc.decompose_ridge_centred, select=hc.decompose_ridge_select)
 
     def state_dict(self) -> dict[str, Any]:
         return {"streak": self.streak, "cooldown": self.cooldown}

@@ -99,11 +99,12 @@ def attribute_returns(program_sums: np.ndarray, returns: np.ndarray, feature_sum
                       centred: bool = False, select: bool = False) -> ReturnAttribution:
     """The attribution from the program's per-episode head features ``[E, D]`` (bias included), the returns
     ``[E]`` and each feature's per-episode sums in each form (``feature_sums[name][form]``, ``[E]``)."""
-    base = cv_r2(program_sums, returns, ridge, folds, centred, select)
+    base = cv_r2(program_sums, returns, ridge, folds, centred=centred, select=select)
     gains = []
     for name, by_form in feature_sums.items():
         for form, col in by_form.items():
-            r2 = cv_r2(np.concatenate([program_sums, col[:, None]], axis=1), returns, ridge, folds, centred, select)
+            r2 = cv_r2(np.concatenate([program_sums, col[:, None]], axis=1), returns, ridge, folds,
+                       centred=centred, select=select)
             if np.isfinite(r2) and np.isfinite(base):
                 gains.append(FeatureGain(name, form, r2, r2 - base, residual_share(r2 - base, base)))
     gains.sort(key=lambda g: -g.gain)

@@ -32,10 +32,9 @@ class HarsConfig:
     """Ridge weight of the head's episode-sum regression, in standardised units (one pseudo-episode)."""
     decompose_ridge_select: bool = False
     """Choose the ridge at each fit among ``decompose_ridge · 10⁻ᵏ`` (k = 0 … 6) by leave-one-episode-out
-    error, so that it fades as the episodes pin the weights down. With ``decompose_ridge_centred`` the
-    head then recovers the environment's own reward weights from the returns; the fixed ridge shrinks
-    near-collinear weights (a control cost turns into a bonus) yet has learned as well or better at the
-    budgets measured, so it stays the default until runs show otherwise (bench/RESULTS.md)."""
+    error, so that it fades as the episodes pin the weights down. With ``decompose_ridge_centred`` it
+    lets the returns, not the ridge, decide near-collinear weights such as a control cost's. Off by
+    default until runs show it learns better (bench/RESULTS.md, "The head's ridge")."""
     decompose_ridge_centred: bool = False
     """Scale each feature's ridge penalty by its variance across episodes rather than its mean square
     (uncentred, a feature with a large mean and little spread — a control cost, the bias — is shrunk
