@@ -15,8 +15,9 @@ mean evaluation return over the final 10% of the budget) with a 95% bootstrap co
 and each seed's figure. ``--at`` reads smaller budgets off the same (longer) runs' evaluations.
 
 Every run writes its evaluation curve as it goes (``<out>/<who>-<algo>-s<seed>/eval.csv``, SB3's
-included), so a benchmark stopped by a time limit still yields a table: a run that did not finish
-is reported at the last step it reached.
+included), so a benchmark stopped by a time limit still yields a table of the budgets its runs
+reached (a run is left out of a budget it has not reached). ``bench/archive.py`` keeps the curves in
+git, so a table can be rebuilt, and a grid filled, after the run directories are gone.
 """
 
 from __future__ import annotations

@@ -1,0 +1,66 @@
+"""Keep the small, auditable part of benchmark runs in git, so that a table can be rebuilt (and a grid
+filled over several sittings) after the run directories themselves are gone.
+
+Run directories (``bench/runs/``) hold checkpoints and replay buffers and stay out of git. This copies,
+for every run under each ``OUT`` given, the files a table and an audit need — ``eval.csv`` (the curve
+every table is read from), ``config.json`` (what ran), ``status.json``, the factor programs and each
+intervention's decision and evidence — to ``bench/archive/<OUT's name>/``, keeping the layout, so that
+
+    python bench/learning.py --table-only --out bench/archive/l19c --steps 100000 --at 50000,100000
+    python bench/flawed.py --task halfcheetah --table-only --out bench/archive/flawed_loo --steps 50000
+
+read the archive as they read the runs. A run still training is copied as far as it got; copying again
+refreshes it.
+
+    python bench/archive.py bench/runs/l19c bench/runs/flawed_loo
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+ARCHIVE = ROOT / "bench" / "archive"
+
+KEPT = ("eval.csv", "config.json", "status.json", "decomposition.json")
+"""Files of a run directory that are copied as they are."""
+KEPT_GLOBS = ("programs/*.json", "interventions/*/decision.json", "interventions/*/evidence.json")
+"""Smaller trees of a run directory: its program versions and each intervention's record."""
+
+
+def run_dirs(out: Path) -> list[Path]:
+    """Every run directory under ``out`` (a directory holding ``config.json``), at any depth."""
+    return sorted(p.parent for p in out.rglob("config.json") if (p.parent / "eval.csv").exists())
+
+
+def archive(out: Path, dest_root: Path = ARCHIVE) -> list[Path]:
+    """Copy the kept files of every run under ``out`` to ``dest_root/<out.name>/``; returns the runs copied."""
+    if not out.is_dir():
+        raise SystemExit(f"archive: {out} is not a directory of runs")
+    copied = []
+    for run in run_dirs(out):
+        dest = dest_root / out.name / run.relative_to(out)
+        files = [run / name for name in KEPT if (run / name).exists()]
+        files += [p for pattern in KEPT_GLOBS for p in sorted(run.glob(pattern))]
+        for src in files:
+            target = dest / src.relative_to(run)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src, target)
+        copied.append(run)
+    return copied
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("outs", nargs="+", type=Path, help="benchmark output directories (e.g. bench/runs/l19c)")
+    ap.add_argument("--dest", type=Path, default=ARCHIVE, help="archive root (default: bench/archive)")
+    args = ap.parse_args()
+    for out in args.outs:
+        runs = archive(out, args.dest)
+        print(f"archive: {len(runs)} runs of {out} -> {args.dest / out.name}")
+
+
+if __name__ == "__main__":
+    main()
