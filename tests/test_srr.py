@@ -15,7 +15,7 @@ from mira.factors.sandbox import collect_states
 from mira.srr.config import SRRConfig
 from mira.srr.efficacy import proxy_efficacy, roc_auc
 from mira.srr.hypotheses import EditSurrogate, rule_hypotheses
-from mira.srr.reframe import Reframer
+from mira.srr.reframe import Reframer, allowed_r2_loss
 from mira.tasks import load_task
 
 GATED_VEL = "def r_vel(s):\n    return s.x_velocity * (1.0 - np.tanh(2.0 * np.square(s.pitch)))\n"
@@ -94,6 +94,28 @@ def test_returns_veto_a_candidate_that_explains_them_worse(tmp_path: Path, state
     assert record["verdicts"]["returns"]["harms"] is (not accepted)
     if not accepted:
         assert decision.backoff and "return explanation" in decision.reason and "0.950 -> 0.800" in decision.reason
+
+
+@pytest.mark.parametrize(("candidate_r2", "accepted"), [(0.99997, True), (0.99, False)])
+def test_returns_veto_scales_with_what_the_program_leaves_unexplained(
+        tmp_path: Path, states: tuple[np.ndarray, np.ndarray], candidate_r2: float, accepted: bool) -> None:
+    """A program that explains the returns almost exactly (R² 0.99998) refuses a candidate at 0.99 (a loss
+    below ``max_r2_loss`` that leaves 500 times as much unexplained) and accepts one within noise of it."""
+    def explain(program):  # type: ignore[no-untyped-def]
+        return 0.99998 if program.version == 0 else candidate_r2
+
+    decision = _reframe(tmp_path, [_reply()], +1.0, states, explain=explain)
+    assert decision.accepted is accepted
+    record = json.loads((tmp_path / "iv" / "candidates.json").read_text())[0]
+    assert record["verdicts"]["returns"]["allowed_loss"] == pytest.approx(2e-5)
+    if not accepted:
+        assert "0.999980 -> 0.990" in decision.reason
+
+
+def test_allowed_r2_loss() -> None:
+    assert allowed_r2_loss(0.5, 0.05, 1.0) == 0.05
+    assert allowed_r2_loss(0.99, 0.05, 1.0) == pytest.approx(0.01)
+    assert allowed_r2_loss(1.0, 0.05, 1.0) == 0.0
 
 
 def test_invalid_reply_is_rejected_before_any_check(tmp_path: Path, states: tuple[np.ndarray, np.ndarray]) -> None:

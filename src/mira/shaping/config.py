@@ -29,16 +29,20 @@ class HarsConfig:
     """Where the decomposition head reads PHI factors: ``next`` (s′, the state the step's reward was
     earned into), ``state`` (s) or ``both``. AUX factors are always read at (s, a)."""
     decompose_ridge: float = 1.0
-    """Ridge weight of the head's episode-sum regression, in standardised units (one pseudo-episode)."""
-    decompose_ridge_select: bool = False
+    """Ridge weight of the head's episode-sum regression, in standardised units (one pseudo-episode): the
+    ridge itself, or with ``decompose_ridge_select`` the largest the selection may choose."""
+    decompose_ridge_select: bool = True
     """Choose the ridge at each fit among ``decompose_ridge · 10⁻ᵏ`` (k = 0 … 6) by leave-one-episode-out
-    error, so that it fades as the episodes pin the weights down. With ``decompose_ridge_centred`` it
-    lets the returns, not the ridge, decide near-collinear weights such as a control cost's. Off by
-    default until runs show it learns better (bench/RESULTS.md, "The head's ridge")."""
-    decompose_ridge_centred: bool = False
+    error, so that it fades as the episodes pin the weights down. Summed over an episode, a program's
+    factors are nearly collinear (effort, posture and the bias move with speed); a fixed ridge moves
+    weight along that direction (a control cost fitted as a bonus), while the selected one lets the
+    returns decide and recovers the task's own weights (bench/RESULTS.md, "The head's ridge"). False:
+    the fixed ``decompose_ridge``."""
+    decompose_ridge_centred: bool = True
     """Scale each feature's ridge penalty by its variance across episodes rather than its mean square
     (uncentred, a feature with a large mean and little spread — a control cost, the bias — is shrunk
-    by its size, not by the evidence). Use with ``decompose_ridge_select``."""
+    by its size, not by the evidence). False with ``decompose_ridge_select`` False: the head before
+    either switch, bit for bit."""
     decompose_nonneg: bool = False
     """Constrain the head's factor weights to w ≥ 0 (the bias stays free): a weight can scale a factor or
     drop it, never turn what the program declares a penalty into a bonus. Off: unconstrained ridge."""

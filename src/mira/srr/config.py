@@ -37,3 +37,8 @@ class SRRConfig:
     is below the current program's by more than this: it would express what the task pays for worse,
     and the AUC test, whose labels come from the current program, cannot see that (the case that
     motivated it: bench/RESULTS.md, HumanoidStandup)."""
+    max_unexplained_growth: float = 1.0
+    """... or by more than this multiple of what the current program leaves unexplained (1 − its R²), when
+    that is smaller: a program that explains the returns almost exactly (R² 0.99998 once the head's
+    ridge is chosen by the evidence) would otherwise accept a candidate that leaves hundreds of times as
+    much unexplained as "a loss of 0.01". 1.0: a candidate may at most double the unexplained part."""

@@ -6,7 +6,9 @@ sandbox realizability (real states, separate process, limits it cannot lift) and
 are at hand, return explanation (the candidate's out-of-sample R² of the episodic returns above the
 current program's by ``min_r2_gain``: the test a structural repair can pass, see
 :mod:`mira.shaping.attribution`). Where the returns are at hand they also veto: a candidate whose R²
-is below the current program's by more than ``max_r2_loss`` is refused whatever its proxy test says
+is below the current program's by more than ``max_r2_loss`` (or, for a program that explains the returns
+almost exactly, by more than ``max_unexplained_growth`` times what it leaves unexplained) is refused
+whatever its proxy test says
 (the AUC labels come from the current program, the returns from the task). The best passing candidate
 (by R² gain, then J_SRR) is accepted; if none passes, SRR abstains and the caller backs off. A failing
 LLM is a recorded, failed intervention — never a crash. Every step is written into the intervention's
@@ -204,13 +206,15 @@ class Reframer:
             r2 = _safe_r2(explain, cand.program)
             gain = r2 - base_r2
             explains = bool(np.isfinite(gain) and gain >= cfg.min_r2_gain)
-            harms = bool(np.isfinite(gain) and gain < -cfg.max_r2_loss)
+            allowed = allowed_r2_loss(base_r2, cfg.max_r2_loss, cfg.max_unexplained_growth)
+            harms = bool(np.isfinite(gain) and gain < -allowed)
             cand.verdicts["returns"] = {"cv_r2": r2, "current_cv_r2": base_r2, "gain": gain,
-                                        "passed": explains, "harms": harms}
+                                        "allowed_loss": allowed, "passed": explains, "harms": harms}
         if harms:
-            cand.verdicts["rejected"] = (f"return explanation: out-of-sample R² of the returns {base_r2:.3f} -> "
-                                         f"{base_r2 + cand.verdicts['returns']['gain']:.3f} (a loss above "
-                                         f"{cfg.max_r2_loss}): the program would express what the task pays "
+            assert base_r2 is not None  # harms is only set where the current R² is known
+            cand.verdicts["rejected"] = (f"return explanation: out-of-sample R² of the returns {_r2_text(base_r2)} -> "
+                                         f"{_r2_text(base_r2 + cand.verdicts['returns']['gain'])} (a loss above "
+                                         f"{allowed:.3g}): the program would express what the task pays "
                                          "for worse than the current one")
             return False, j_srr
         if not (ok or explains):
@@ -231,6 +235,18 @@ class Reframer:
         decision.folder = str(folder)
         atomic_write_json(folder / "decision.json", decision.as_dict())
         return decision
+
+
+def allowed_r2_loss(current_r2: float, max_loss: float, max_unexplained_growth: float) -> float:
+    """The largest fall of the returns' out-of-sample R² a candidate may cause: ``max_loss``, or
+    ``max_unexplained_growth · (1 − current_r2)`` when the current program leaves less than that unexplained
+    (the returns' noise, against which the tolerance guards, shrinks with what is left unexplained)."""
+    return min(max_loss, max_unexplained_growth * max(1.0 - current_r2, 0.0))
+
+
+def _r2_text(r2: float) -> str:
+    """An R² with as many decimals as it takes to show how far from 1 it is."""
+    return f"{r2:.3f}" if 1.0 - r2 >= 1e-3 else f"{r2:.6f}"
 
 
 def _safe_r2(explain: ReturnExplanation, program: FactorProgram) -> float:
