@@ -87,9 +87,10 @@ def test_selected_ridge_keeps_a_large_mean_small_spread_factor_at_its_weight() -
         few.add(x, ret, 1000.0)
     few.fit()
     assert np.all(np.isfinite(few.theta))
-    head = DecompositionHead(HarsConfig(decompose_ridge_select=True, decompose_ridge_centred=True), ["v"], ["c"])
-    assert head.regression.select and head.regression.centred
-    assert not DecompositionHead(HarsConfig(), ["v"], ["c"]).regression.select  # the default: a fixed ridge
+    head = DecompositionHead(HarsConfig(), ["v"], ["c"])
+    assert head.regression.select and head.regression.centred  # the default: the ridge the evidence chooses
+    fixed = DecompositionHead(HarsConfig(decompose_ridge_select=False, decompose_ridge_centred=False), ["v"], ["c"])
+    assert not fixed.regression.select and not fixed.regression.centred
 
 
 def test_nonneg_fit_never_turns_a_factor_around_and_keeps_the_bias_free() -> None:
