@@ -31,6 +31,24 @@ def test_mira_writes_diagnostics_programs_and_llm_audit(tmp_path: Path, fast_tra
     assert "rule-based" in exchanges  # the offline engineer says what it is
 
 
+AGENT_COLUMNS = ("train_return", "critic_loss", "q_mean", "actor_loss", "entropy", "alpha")
+
+
+@pytest.mark.slow
+def test_the_monitor_leaves_the_agent_as_hars_trains_it(tmp_path: Path, fast_train_args: list[str]) -> None:
+    """Without an edit, MIRA's agent is HARS's bit for bit (κ = 0: the agent learns from r̂ alone): the
+    monitor reads the run, it draws none of the agent's random numbers and feeds nothing back. Only
+    Φ's own figures may differ (reading Φ each cycle lands HARS's pending training step earlier)."""
+    runs = {m: tmp_path / m for m in ("hars", "mira-no-srr")}
+    for method, run in runs.items():
+        assert _train(run, fast_train_args, method, steps=2000) == 0
+    assert len(read_csv(runs["mira-no-srr"] / "diagnostics.csv")) == 5  # the monitor did run
+    evals = {m: [(r["step"], r["return_mean"]) for r in read_csv(run / "eval.csv")] for m, run in runs.items()}
+    assert evals["hars"] == evals["mira-no-srr"] and len(evals["hars"]) == 2
+    train = {m: [[r[k] for k in AGENT_COLUMNS] for r in read_csv(run / "train.csv")] for m, run in runs.items()}
+    assert train["hars"] == train["mira-no-srr"] and len(train["hars"]) == 4
+
+
 @pytest.mark.slow
 def test_endpoint_down_records_failed_interventions_and_training_goes_on(tmp_path: Path,
                                                                          fast_train_args: list[str]) -> None:
