@@ -44,11 +44,13 @@ def flaws(task: str) -> list[dict[str, str]]:
     return [e for e in entries if e["task"] == task]
 
 
-def jobs(task: str, names: list[str], methods: list[str], seeds: list[int]) -> list[tuple[str, str, int]]:
-    """(flaw, method, seed), seed-major; the good program gets ``hars`` and ``mira`` only."""
+def jobs(task: str, names: list[str], methods: list[str], seeds: list[int],
+         good: bool = True) -> list[tuple[str, str, int]]:
+    """(flaw, method, seed), seed-major; the good program (unless ``good`` is False) gets ``hars`` and
+    ``mira`` only."""
     out = []
     for seed in seeds:
-        for name in [GOOD, *names]:
+        for name in [GOOD, *names] if good else names:
             for method in methods:
                 if name == GOOD and method not in ("hars", "mira"):
                     continue
@@ -190,6 +192,9 @@ def main() -> None:
     p.add_argument("--out", type=Path, default=ROOT / "bench" / "runs" / "flawed")
     p.add_argument("--train-args", default="", help="extra flags for mira train")
     p.add_argument("--table-only", action="store_true")
+    p.add_argument("--skip-good", action="store_true",
+                   help="run only the flawed programs (the good program's runs are the table's reference: "
+                        "run them once, e.g. in another invocation)")
     args = p.parse_args()
     known = [e["name"] for e in flaws(args.task)]
     names = [n for n in args.flaws.split(",") if n] or known
@@ -203,7 +208,7 @@ def main() -> None:
     if not args.table_only:
         with ProcessPoolExecutor(args.workers) as pool:
             futures = []
-            for name, method, seed in jobs(args.task, names, methods, seeds):
+            for name, method, seed in jobs(args.task, names, methods, seeds, good=not args.skip_good):
                 program = [] if name == GOOD else ["--program", str(FLAWED / args.task / f"{name}.json")]
                 futures.append(pool.submit(run_ours, method, args.algo, seed, args.steps, args.out / args.task / name,
                                            [*program, *common], args.task))
