@@ -35,8 +35,12 @@ class OuterLoopConfig:
     gait angle) explains part of it (measured shares: bench/RESULTS.md, "Repairing flawed programs")."""
     repair_cycles: int = 3
     """Cycles in a row with such a feature before SRR is called."""
-    repair_min_episodes: int = 20
-    """Stored episodes needed before the attribution is measured (its cross-validation needs them)."""
+    repair_min_episodes: int = 10
+    """Stored episodes needed before the attribution is measured (two per fold of its cross-validation).
+    Few enough that a flaw the random warm-up's episodes already show is repaired about when learning
+    starts, before the policy commits to what the flawed program pays for: at 20 (13k steps later on
+    HalfCheetah) the agent had learned to run flipped over under a gate that paid only there, and the
+    repair did not undo it by 50k (bench/RESULTS.md, "Repairing flawed programs")."""
     repair_max_episodes: int = 200
     """The attribution uses at most this many of the latest stored episodes."""
     repair_folds: int = 5
