@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -21,6 +24,28 @@ FAST_TRAIN = [
 @pytest.fixture
 def fast_train_args() -> list[str]:
     return list(FAST_TRAIN)
+
+
+BENCH = Path(__file__).parents[1] / "bench"
+
+
+def _load_bench(name: str) -> ModuleType:
+    """``bench/<name>.py`` as a module, its siblings importable as when the benchmark runs."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        spec = importlib.util.spec_from_file_location(f"bench_{name}", BENCH / f"{name}.py")
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+    finally:
+        sys.path.remove(str(BENCH))
+
+
+@pytest.fixture
+def load_bench() -> Callable[[str], ModuleType]:
+    """Loads a benchmark script (``bench/`` is not a package) by its name."""
+    return _load_bench
 
 
 @pytest.fixture

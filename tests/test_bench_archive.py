@@ -3,19 +3,10 @@ readers expect."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
+from collections.abc import Callable
 from pathlib import Path
-
-ARCHIVE_PY = Path(__file__).parents[1] / "bench" / "archive.py"
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("bench_archive", ARCHIVE_PY)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from types import ModuleType
 
 
 def _fake_run(run: Path, final: float) -> None:
@@ -30,8 +21,9 @@ def _fake_run(run: Path, final: float) -> None:
     (run / "train.csv").write_text("step\n1\n")
 
 
-def test_archive_keeps_curves_programs_and_decisions_not_checkpoints(tmp_path: Path) -> None:
-    archive = _load()
+def test_archive_keeps_curves_programs_and_decisions_not_checkpoints(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    archive = load_bench("archive")
     out = tmp_path / "runs" / "grid"
     _fake_run(out / "mira-sac-s0", 42.0)
     _fake_run(out / "halfcheetah" / "no_progress" / "hars-sac-s1", 7.0)  # bench/flawed.py's deeper layout

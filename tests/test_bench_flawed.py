@@ -3,27 +3,13 @@ with ``hars`` and ``mira`` only, and none of them when they are run elsewhere.""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
-BENCH = Path(__file__).parents[1] / "bench"
+from collections.abc import Callable
+from types import ModuleType
 
 
-def _load():
-    sys.path.insert(0, str(BENCH))  # flawed.py imports its sibling learning.py as the benchmark runs it
-    try:
-        spec = importlib.util.spec_from_file_location("bench_flawed", BENCH / "flawed.py")
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        return module
-    finally:
-        sys.path.remove(str(BENCH))
-
-
-def test_jobs_give_the_good_program_only_hars_and_mira_and_can_leave_it_out() -> None:
-    flawed = _load()
+def test_jobs_give_the_good_program_only_hars_and_mira_and_can_leave_it_out(
+        load_bench: Callable[[str], ModuleType]) -> None:
+    flawed = load_bench("flawed")
     methods = ["hars", "mira", "mira-no-mcm"]
     with_good = flawed.jobs("halfcheetah", ["no_progress"], methods, [0, 1])
     assert with_good[:5] == [("good", "hars", 0), ("good", "mira", 0), ("no_progress", "hars", 0),

@@ -39,7 +39,7 @@ class OuterLoopConfig:
     """Stored episodes needed before the attribution is measured (two per fold of its cross-validation).
     Few enough that a flaw the random warm-up's episodes already show is repaired about when learning
     starts, before the policy commits to what the flawed program pays for: at 20 (13k steps later on
-    HalfCheetah) the agent had learned to run flipped over under a gate that paid only there, and the
+    HalfCheetah) the agent had learned to move pitched over under a gate that paid only there, and the
     repair did not undo it by 50k (bench/RESULTS.md, "Repairing flawed programs")."""
     repair_max_episodes: int = 200
     """The attribution uses at most this many of the latest stored episodes."""
