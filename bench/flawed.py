@@ -9,6 +9,8 @@ extends the runs already there.
     python bench/flawed.py --task halfcheetah --seeds 0,1,2 --steps 100000 --workers 2
     python bench/flawed.py --task halfcheetah --flaws no_progress,abs_velocity --methods hars,mira --seeds 0
     python bench/flawed.py --task halfcheetah --table-only --steps 100000
+    python bench/flawed.py --task halfcheetah --table-only --steps 50000 --out bench/runs/new \
+        --from bench/archive/flawed_s1,bench/archive/flawed_h      # new runs beside archived ones
 
 The table gives, per flaw and method, the final return (IQM over seeds with a 95% bootstrap CI, as in
 ``bench/learning.py``) and its ratio to good-program ``hars``; then the issue's targets, and each
@@ -58,12 +60,22 @@ def jobs(task: str, names: list[str], methods: list[str], seeds: list[int],
     return out
 
 
-def finals(run_root: Path, method: str, algo: str, budget: int) -> dict[int, float]:
-    """seed → final return of the finished-enough runs of ``method`` under ``run_root``."""
+def runs(roots: list[Path], name: str, method: str, algo: str) -> dict[int, Path]:
+    """seed → run directory of ``method`` on program ``name``, gathered over ``roots`` (each a
+    ``<out>/<task>``); where two roots hold the same seed, the earlier root's run is the one read."""
+    found: dict[int, Path] = {}
+    for root in roots:
+        for run in sorted((root / name).glob(f"{method}-{algo}-s*")):
+            if (run / "eval.csv").is_file():
+                found.setdefault(int(run.name.rpartition("-s")[2]), run)
+    return dict(sorted(found.items()))
+
+
+def finals(roots: list[Path], name: str, method: str, algo: str, budget: int) -> dict[int, float]:
+    """seed → final return of the finished-enough runs of ``method`` on program ``name``."""
     out = {}
-    for eval_csv in sorted(run_root.glob(f"{method}-{algo}-s*/eval.csv")):
-        seed = int(eval_csv.parent.name.rpartition("-s")[2])
-        curve = [(int(r["step"]), float(r["return_mean"])) for r in read_csv(eval_csv)]
+    for seed, run in runs(roots, name, method, algo).items():
+        curve = [(int(r["step"]), float(r["return_mean"])) for r in read_csv(run / "eval.csv")]
         value = final_return(curve, budget)
         if value is not None:
             out[seed] = value
@@ -96,19 +108,19 @@ def interventions(run: Path) -> list[str]:
     return lines
 
 
-def table(out: Path, task: str, algo: str, budget: int, methods: list[str], header: list[str]) -> str:
+def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[str], header: list[str]) -> str:
+    """The issue's table over the runs under ``roots`` (each a ``<out>/<task>``, earlier roots first)."""
     entries = {e["name"]: e for e in flaws(task)}
-    root = out / task
-    good = iqm(list(finals(root / GOOD, "hars", algo, budget).values()))[0]
+    good = iqm(list(finals(roots, GOOD, "hars", algo, budget).values()))[0]
     lines = [*header, "", f"Reference: good-program `hars` {good:.0f} (the ratios below are to it).", "",
              "| program | kind | " + " | ".join(methods) + " |", "|---|---|" + "---|" * len(methods)]
     ratios: dict[tuple[str, str], float] = {}
     for name in [GOOD, *entries]:
-        if not (root / name).is_dir():
+        if not any((root / name).is_dir() for root in roots):
             continue
         cells = []
         for method in methods:
-            per_seed = finals(root / name, method, algo, budget)
+            per_seed = finals(roots, name, method, algo, budget)
             if not per_seed:
                 cells.append("-")
                 continue
@@ -133,23 +145,22 @@ def table(out: Path, task: str, algo: str, budget: int, methods: list[str], head
               "* Mean ratio over structural flaws: " + ", ".join(f"`{m}` {mean_ratio(m):.0%}" for m in methods) + ".",
               f"* Good program: `mira` {ratios.get((GOOD, 'mira'), float('nan')):.0%} of `hars`."]
     stories = []
-    for run in sorted(root.glob(f"*/mira-{algo}-s*")):
-        for line in interventions(run):
-            stories.append(f"  * {run.parent.name} s{run.name.rpartition('-s')[2]}: step {line}")
+    for name in [GOOD, *entries]:
+        for seed, run in runs(roots, name, "mira", algo).items():
+            stories += [f"  * {name} s{seed}: step {line}" for line in interventions(run)]
     if stories:
         lines += ["", "Interventions of the `mira` runs:", *stories]
     return "\n".join(lines)
 
 
-def plot(out: Path, task: str, algo: str, methods: list[str]) -> Path | None:
+def plot(roots: list[Path], task: str, algo: str, methods: list[str]) -> Path | None:
     """One panel per program: each method's mean evaluation curve over seeds, and a tick at every step
-    where a ``mira`` run installed a new program (``<out>/<task>/curves.png``)."""
+    where a ``mira`` run installed a new program (``curves.png`` in the first root)."""
     from matplotlib.ticker import FuncFormatter
 
     from mira.experiments.plots import Curve, _figure, band, method_colour, steps_label
 
-    root = out / task
-    names = [n for n in [GOOD, *(e["name"] for e in flaws(task))] if (root / n).is_dir()]
+    names = [n for n in [GOOD, *(e["name"] for e in flaws(task))] if any((r / n).is_dir() for r in roots)]
     if not names:
         return None
     fig, canvas = _figure(5.0 * min(len(names), 3), 3.4 * ((len(names) + 2) // 3))
@@ -157,13 +168,14 @@ def plot(out: Path, task: str, algo: str, methods: list[str]) -> Path | None:
         ax = fig.add_subplot((len(names) + 2) // 3, min(len(names), 3), k + 1)
         for i, method in enumerate(methods):
             curves = [Curve([float(r["step"]) for r in rows], [float(r["return_mean"]) for r in rows])
-                      for rows in (read_csv(f) for f in sorted((root / name).glob(f"{method}-{algo}-s*/eval.csv")))
+                      for rows in (read_csv(run / "eval.csv") for run in runs(roots, name, method, algo).values())
                       if rows]
             if not curves:
                 continue
             steps, mean, _, count = band(curves)
             ax.plot(steps, mean, color=method_colour(method, i), lw=1.6, label=f"{method} ({max(count)} s)")
-        for decision in sorted((root / name).glob(f"mira-{algo}-s*/interventions/*/decision.json")):
+        for decision in sorted(d for run in runs(roots, name, "mira", algo).values()
+                               for d in run.glob("interventions/*/decision.json")):
             if json.loads(decision.read_text()).get("accepted"):
                 step = float(decision.parent.name.rpartition("-step")[2])
                 ax.axvline(step, color="#2ca02c", lw=0.8, ls="--")
@@ -173,7 +185,8 @@ def plot(out: Path, task: str, algo: str, methods: list[str]) -> Path | None:
         ax.legend(fontsize=7, frameon=False)
     fig.suptitle(f"{task}: evaluation return from flawed initial programs (dashed: mira installed a program)")
     fig.tight_layout()
-    path = root / "curves.png"
+    roots[0].mkdir(parents=True, exist_ok=True)
+    path = roots[0] / "curves.png"
     canvas.print_png(str(path))
     return path
 
@@ -192,6 +205,10 @@ def main() -> None:
     p.add_argument("--out", type=Path, default=ROOT / "bench" / "runs" / "flawed")
     p.add_argument("--train-args", default="", help="extra flags for mira train")
     p.add_argument("--table-only", action="store_true")
+    p.add_argument("--from", dest="sources", default="",
+                   help="comma-separated further run folders (each like --out) whose runs the table and plot "
+                        "also read, e.g. archived ones; where two hold the same run, --out's (then the first "
+                        "listed) is read")
     p.add_argument("--skip-good", action="store_true",
                    help="run only the flawed programs (the good program's runs are the table's reference: "
                         "run them once, e.g. in another invocation)")
@@ -216,16 +233,22 @@ def main() -> None:
                 f.result()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                             cwd=ROOT).stdout.strip()
+    folders = [args.out, *(Path(d) for d in args.sources.split(",") if d)]
+    roots = [d / args.task for d in folders]
     header = [f"{args.task}, {args.algo.upper()}, {args.steps} steps, seeds {args.seeds}, eval every {args.eval_every} "
               f"steps x {args.eval_episodes} episodes; figure = IQM over seeds of the mean eval return over the "
               "final 10% of the budget [95% CI] (ratio to good-program hars, seeds finished).",
               f"Machine: {cpu_model()}, {os.cpu_count()} cores, 1 torch thread per run, {args.workers} runs in "
-              f"parallel; commit {commit}; extra train flags: {args.train_args or 'none'}."]
-    text = table(args.out, args.task, args.algo, args.steps, methods, header)
+              f"parallel; commit {commit}; extra train flags: {args.train_args or 'none'}.",
+              "Runs read from: " + ", ".join(str(d) for d in folders) + "."]
+    missing = [str(r) for r in roots[1:] if not r.is_dir()]
+    if missing:
+        p.error(f"--from: no runs of {args.task} under {', '.join(missing)}")
+    text = table(roots, args.task, args.algo, args.steps, methods, header)
     print(text)
-    (args.out / args.task).mkdir(parents=True, exist_ok=True)
-    (args.out / args.task / "table.md").write_text(text + "\n")
-    figure = plot(args.out, args.task, args.algo, methods)
+    roots[0].mkdir(parents=True, exist_ok=True)
+    (roots[0] / "table.md").write_text(text + "\n")
+    figure = plot(roots, args.task, args.algo, methods)
     if figure is not None:
         print(f"curves: {figure}")
 

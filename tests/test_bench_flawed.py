@@ -1,9 +1,11 @@
-"""``bench/flawed.py``'s run list: every flawed program per method, the good program's reference runs
-with ``hars`` and ``mira`` only, and none of them when they are run elsewhere."""
+"""``bench/flawed.py``'s run list (every flawed program per method, the good program's reference runs
+with ``hars`` and ``mira`` only, and none of them when they are run elsewhere) and its gathering of runs
+over several folders."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from types import ModuleType
 
 
@@ -17,3 +19,24 @@ def test_jobs_give_the_good_program_only_hars_and_mira_and_can_leave_it_out(
     assert len(with_good) == 10
     without = flawed.jobs("halfcheetah", ["no_progress"], methods, [0, 1], good=False)
     assert without == [(n, m, s) for n, m, s in with_good if n != "good"]
+
+
+def _run(run: Path, returns: list[float]) -> None:
+    run.mkdir(parents=True)
+    rows = "".join(f"{5000 * (k + 1)},{r},0.0,1000.0,10,1.0\n" for k, r in enumerate(returns))
+    (run / "eval.csv").write_text("step,return_mean,return_std,length_mean,episodes,wall_s\n" + rows)
+
+
+def test_the_table_gathers_seeds_over_folders_and_the_first_folder_wins(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    flawed = load_bench("flawed")
+    new, old = tmp_path / "new" / "halfcheetah", tmp_path / "archive" / "halfcheetah"
+    _run(new / "no_progress" / "mira-sac-s0", [1.0, 10.0])
+    _run(old / "no_progress" / "mira-sac-s0", [1.0, 99.0])     # the same run elsewhere: not read
+    _run(old / "no_progress" / "mira-sac-s1", [1.0, 20.0])
+    _run(old / "no_progress" / "mira-sac-s2", [1.0])           # not finished at the budget: left out
+    (old / "no_progress" / "mira-sac-s3").mkdir()              # no curve: not a run
+
+    assert flawed.finals([new, old], "no_progress", "mira", "sac", 10_000) == {0: 10.0, 1: 20.0}
+    assert flawed.finals([old, new], "no_progress", "mira", "sac", 10_000) == {0: 99.0, 1: 20.0}
+    assert sorted(flawed.runs([new, old], "no_progress", "mira", "sac")) == [0, 1, 2]
