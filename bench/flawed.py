@@ -141,13 +141,20 @@ def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[st
     def mean_ratio(method: str) -> float:
         return float(np.mean([ratios[n, method] for n in shared])) if shared else float("nan")
 
+    def not_run(names: list[str]) -> str:
+        # A row without both `hars` and `mira` can neither meet nor miss a target: it is named, not counted.
+        missing = [n for n in names if (n, "hars") not in ratios or (n, "mira") not in ratios]
+        return f"; not run with both `hars` and `mira`: {', '.join(missing)}" if missing else ""
+
+    good_line = (f"`mira` {ratios[GOOD, 'mira']:.0%} of `hars`" if (GOOD, "mira") in ratios
+                 else "`mira` not run")
     lines += ["", f"* Structural flaws repaired (`mira` ≥ 70%, `hars` < 50%): {len(repaired)} of {len(structural)} "
-              f"({', '.join(repaired) or 'none'}); target: at least 3 of 4.",
+              f"({', '.join(repaired) or 'none'}{not_run(structural)}); target: at least 3 of 4.",
               f"* Parametric flaws absorbed (`hars` and `mira` ≥ 70%): {len(absorbed)} of {len(parametric)} "
-              f"({', '.join(absorbed) or 'none'}).",
+              f"({', '.join(absorbed) or 'none'}{not_run(parametric)}).",
               f"* Mean ratio over the structural flaws every method ran ({', '.join(shared) or 'none'}): "
               + ", ".join(f"`{m}` {mean_ratio(m):.0%}" for m in methods) + ".",
-              f"* Good program: `mira` {ratios.get((GOOD, 'mira'), float('nan')):.0%} of `hars`."]
+              f"* Good program: {good_line}."]
     stories = []
     for name in [GOOD, *entries]:
         for seed, run in runs(roots, name, "mira", algo).items():

@@ -40,3 +40,20 @@ def test_the_table_gathers_seeds_over_folders_and_the_first_folder_wins(
     assert flawed.finals([new, old], "no_progress", "mira", "sac", 10_000) == {0: 10.0, 1: 20.0}
     assert flawed.finals([old, new], "no_progress", "mira", "sac", 10_000) == {0: 99.0, 1: 20.0}
     assert sorted(flawed.runs([new, old], "no_progress", "mira", "sac")) == [0, 1, 2]
+
+
+def test_the_targets_name_the_rows_not_run_instead_of_counting_them_as_misses(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    flawed = load_bench("flawed")
+    root = tmp_path / "out" / "halfcheetah"
+    _run(root / "good" / "hars-sac-s0", [100.0])
+    _run(root / "no_progress" / "hars-sac-s0", [10.0])
+    _run(root / "no_progress" / "mira-sac-s0", [90.0])
+    _run(root / "abs_velocity" / "hars-sac-s0", [10.0])          # its `mira` run is missing
+
+    text = flawed.table([root], "halfcheetah", "sac", 5000, ["hars", "mira"], ["header"])
+    assert "1 of 4 (no_progress; not run with both `hars` and `mira`: abs_velocity, wrong_gate, " \
+           "saturated_velocity)" in text
+    assert "0 of 2 (none; not run with both `hars` and `mira`: rewarded_effort, drowning_posture)" in text
+    assert "* Good program: `mira` not run." in text
+    assert "nan" not in text
