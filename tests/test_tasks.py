@@ -58,6 +58,28 @@ def test_uprightness_expression_is_one_when_upright() -> None:
     with pytest.raises(ValueError):
         view.torso_height[0] = 3.0
 
+def test_humanoidstandup_uprightness_follows_the_pelvis_to_head_axis() -> None:
+    """HumanoidStandup's model lies along +x in its reference pose (identity quaternion): uprightness
+    is 0 at the start and 1 once the head is straight above the pelvis, -1 head down."""
+    import mujoco
+
+    card = load_task("humanoidstandup")
+    env = make_env(card)
+    obs, _ = env.reset(seed=1)
+    assert card.state_view(obs[None]).uprightness[0] == pytest.approx(0.0, abs=0.05)
+    base = env.unwrapped
+    model, data = base.model, base.data  # type: ignore[attr-defined]
+    head = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "head")
+    butt = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "butt")
+    for pitch, expected in ((90.0, 1.0), (-90.0, -1.0), (45.0, np.sqrt(0.5))):
+        half = np.radians(pitch) / 2
+        data.qpos[2] = 1.0
+        data.qpos[3:7] = [np.cos(half), 0.0, np.sin(half), 0.0]
+        mujoco.mj_forward(model, data)
+        view = card.state_view(base._get_obs()[None])  # type: ignore[attr-defined]
+        assert view.uprightness[0] == pytest.approx(expected, abs=1e-6)
+        assert (data.geom_xpos[head][2] > data.geom_xpos[butt][2]) == (expected > 0)
+
 
 def _write(tmp_path: Path, name: str, text: str) -> Path:
     path = tmp_path / name
