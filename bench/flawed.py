@@ -177,6 +177,7 @@ def plot(roots: list[Path], task: str, algo: str, methods: list[str]) -> Path | 
     fig, canvas = _figure(5.0 * min(len(names), 3), 3.4 * ((len(names) + 2) // 3))
     for k, name in enumerate(names):
         ax = fig.add_subplot((len(names) + 2) // 3, min(len(names), 3), k + 1)
+        drawn: list[tuple[str, list[float], list[float]]] = []
         for i, method in enumerate(methods):
             curves = [Curve([float(r["step"]) for r in rows], [float(r["return_mean"]) for r in rows])
                       for rows in (read_csv(run / "eval.csv") for run in runs(roots, name, method, algo).values())
@@ -184,7 +185,12 @@ def plot(roots: list[Path], task: str, algo: str, methods: list[str]) -> Path | 
             if not curves:
                 continue
             steps, mean, _, count = band(curves)
-            ax.plot(steps, mean, color=method_colour(method, i), lw=1.6, label=f"{method} ({max(count)} s)")
+            # A method whose runs repeat an earlier one's (``mira`` with no edit, ``mira-no-srr``) would
+            # hide that curve: draw it dashed on top and say whose curve it is.
+            same = next((m for m, s, y in drawn if list(s) == list(steps) and list(y) == list(mean)), None)
+            label = f"{method} ({max(count)} s)" + (f" = {same}" if same else "")
+            ax.plot(steps, mean, color=method_colour(method, i), lw=1.6, ls="--" if same else "-", label=label)
+            drawn.append((method, list(steps), list(mean)))
         for decision in sorted(d for run in runs(roots, name, "mira", algo).values()
                                for d in run.glob("interventions/*/decision.json")):
             if json.loads(decision.read_text()).get("accepted"):
@@ -194,7 +200,8 @@ def plot(roots: list[Path], task: str, algo: str, methods: list[str]) -> Path | 
         ax.xaxis.set_major_formatter(FuncFormatter(steps_label))
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7, frameon=False)
-    fig.suptitle(f"{task}: evaluation return from flawed initial programs (dashed: mira installed a program)")
+    fig.suptitle(f"{task}: evaluation return from flawed initial programs (green lines: mira installed a program; "
+                 "a dashed curve repeats the one its label names)")
     fig.tight_layout()
     roots[0].mkdir(parents=True, exist_ok=True)
     path = roots[0] / "curves.png"
