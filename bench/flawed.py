@@ -60,21 +60,54 @@ def jobs(task: str, names: list[str], methods: list[str], seeds: list[int],
     return out
 
 
-def runs(roots: list[Path], name: str, method: str, algo: str) -> dict[int, Path]:
+def runs(roots: list[Path], name: str, method: str, algo: str,
+         reference: dict[int, Path] | None = None) -> dict[int, Path]:
     """seed → run directory of ``method`` on program ``name``, gathered over ``roots`` (each a
-    ``<out>/<task>``); where two roots hold the same seed, the earlier root's run is the one read."""
+    ``<out>/<task>``); where two roots hold the same seed, the earlier root's run is the one read.
+    ``reference`` (see :func:`reference_runs`) fills the good program's ``hars`` seeds the roots lack."""
     found: dict[int, Path] = {}
     for root in roots:
         for run in sorted((root / name).glob(f"{method}-{algo}-s*")):
             if (run / "eval.csv").is_file():
                 found.setdefault(int(run.name.rpartition("-s")[2]), run)
+    if name == GOOD and method == "hars":
+        for seed, run in (reference or {}).items():
+            found.setdefault(seed, run)
     return dict(sorted(found.items()))
 
 
-def finals(roots: list[Path], name: str, method: str, algo: str, budget: int) -> dict[int, float]:
+def reference_runs(task: str, algo: str, dirs: list[Path]) -> dict[int, Path]:
+    """seed → run directory, for runs made elsewhere that stand for good-program ``hars``: runs of the
+    task's own program (no ``--program``) by ``hars``, or by a ``mira`` method that installed no program
+    (until an edit its agent is ``hars``'s bit for bit), e.g. ``bench/learning.py``'s. Anything else is
+    refused with the reason."""
+    out: dict[int, Path] = {}
+    for run in dirs:
+        try:
+            cfg = json.loads((run / "config.json").read_text(encoding="utf-8"))["config"]
+        except (OSError, ValueError, KeyError) as exc:
+            raise ValueError(f"{run}: no readable config.json ({exc})") from None
+        accepted = [d.parent.name for d in sorted(run.glob("interventions/*/decision.json"))
+                    if json.loads(d.read_text(encoding="utf-8")).get("accepted")]
+        problems = [why for bad, why in [
+            (cfg.get("task") != task, f"task {cfg.get('task')!r}, not {task!r}"),
+            (cfg.get("algo") != algo, f"algo {cfg.get('algo')!r}, not {algo!r}"),
+            (bool(cfg.get("program")), f"started from {cfg.get('program')}, not the task's own program"),
+            (cfg.get("method") != "hars" and not str(cfg.get("method")).startswith("mira"),
+             f"method {cfg.get('method')!r} is neither hars nor mira"),
+            (bool(accepted), f"installed a program ({', '.join(accepted)}), so its agent is not hars's"),
+            (not (run / "eval.csv").is_file(), "no eval.csv")] if bad]
+        if problems:
+            raise ValueError(f"{run}: " + "; ".join(problems))
+        out.setdefault(int(cfg["seed"]), run)
+    return out
+
+
+def finals(roots: list[Path], name: str, method: str, algo: str, budget: int,
+           reference: dict[int, Path] | None = None) -> dict[int, float]:
     """seed → final return of the finished-enough runs of ``method`` on program ``name``."""
     out = {}
-    for seed, run in runs(roots, name, method, algo).items():
+    for seed, run in runs(roots, name, method, algo, reference).items():
         curve = [(int(r["step"]), float(r["return_mean"])) for r in read_csv(run / "eval.csv")]
         value = final_return(curve, budget)
         if value is not None:
@@ -108,10 +141,11 @@ def interventions(run: Path) -> list[str]:
     return lines
 
 
-def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[str], header: list[str]) -> str:
+def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[str], header: list[str],
+          reference: dict[int, Path] | None = None) -> str:
     """The issue's table over the runs under ``roots`` (each a ``<out>/<task>``, earlier roots first)."""
     entries = {e["name"]: e for e in flaws(task)}
-    good = iqm(list(finals(roots, GOOD, "hars", algo, budget).values()))[0]
+    good = iqm(list(finals(roots, GOOD, "hars", algo, budget, reference).values()))[0]
     lines = [*header, "", f"Reference: good-program `hars` {good:.0f} (the ratios below are to it).", "",
              "| program | kind | " + " | ".join(methods) + " |", "|---|---|" + "---|" * len(methods)]
     ratios: dict[tuple[str, str], float] = {}
@@ -120,7 +154,7 @@ def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[st
             continue
         cells = []
         for method in methods:
-            per_seed = finals(roots, name, method, algo, budget)
+            per_seed = finals(roots, name, method, algo, budget, reference)
             if not per_seed:
                 cells.append("-")
                 continue
@@ -164,7 +198,8 @@ def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[st
     return "\n".join(lines)
 
 
-def plot(roots: list[Path], task: str, algo: str, methods: list[str]) -> Path | None:
+def plot(roots: list[Path], task: str, algo: str, methods: list[str],
+         reference: dict[int, Path] | None = None) -> Path | None:
     """One panel per program: each method's mean evaluation curve over seeds, and a tick at every step
     where a ``mira`` run installed a new program (``curves.png`` in the first root)."""
     from matplotlib.ticker import FuncFormatter
@@ -180,7 +215,8 @@ def plot(roots: list[Path], task: str, algo: str, methods: list[str]) -> Path | 
         drawn: list[tuple[str, list[float], list[float]]] = []
         for i, method in enumerate(methods):
             curves = [Curve([float(r["step"]) for r in rows], [float(r["return_mean"]) for r in rows])
-                      for rows in (read_csv(run / "eval.csv") for run in runs(roots, name, method, algo).values())
+                      for rows in (read_csv(run / "eval.csv")
+                                   for run in runs(roots, name, method, algo, reference).values())
                       if rows]
             if not curves:
                 continue
@@ -227,6 +263,10 @@ def main() -> None:
                    help="comma-separated further run folders (each like --out) whose runs the table and plot "
                         "also read, e.g. archived ones; where two hold the same run, --out's (then the first "
                         "listed) is read")
+    p.add_argument("--reference", default="",
+                   help="comma-separated run directories that stand for good-program hars where the folders "
+                        "hold no such seed: hars runs of the task's own program, or mira runs that installed "
+                        "no program (e.g. bench/learning.py's); anything else is refused")
     p.add_argument("--skip-good", action="store_true",
                    help="run only the flawed programs (the good program's runs are the table's reference: "
                         "run them once, e.g. in another invocation)")
@@ -262,11 +302,18 @@ def main() -> None:
     missing = [str(r) for r in roots[1:] if not r.is_dir()]
     if missing:
         p.error(f"--from: no runs of {args.task} under {', '.join(missing)}")
-    text = table(roots, args.task, args.algo, args.steps, methods, header)
+    try:
+        reference = reference_runs(args.task, args.algo, [Path(d) for d in args.reference.split(",") if d])
+    except ValueError as exc:
+        p.error(f"--reference: {exc}")
+    if reference:
+        header.append("Good-program `hars` seeds read from elsewhere where the folders hold none: "
+                      + ", ".join(f"s{seed} {run}" for seed, run in reference.items()) + ".")
+    text = table(roots, args.task, args.algo, args.steps, methods, header, reference)
     print(text)
     roots[0].mkdir(parents=True, exist_ok=True)
     (roots[0] / "table.md").write_text(text + "\n")
-    figure = plot(roots, args.task, args.algo, methods)
+    figure = plot(roots, args.task, args.algo, methods, reference)
     if figure is not None:
         print(f"curves: {figure}")
 

@@ -4,9 +4,12 @@ over several folders."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
+
+import pytest
 
 
 def test_jobs_give_the_good_program_only_hars_and_mira_and_can_leave_it_out(
@@ -57,3 +60,46 @@ def test_the_targets_name_the_rows_not_run_instead_of_counting_them_as_misses(
     assert "0 of 2 (none; not run with both `hars` and `mira`: rewarded_effort, drowning_posture)" in text
     assert "* Good program: `mira` not run." in text
     assert "nan" not in text
+
+
+def _config(run: Path, **cfg: object) -> None:
+    base = {"task": "halfcheetah", "algo": "sac", "method": "mira", "seed": 1, "program": None}
+    (run / "config.json").write_text(json.dumps({"config": {**base, **cfg}}))
+
+
+def test_reference_runs_fill_the_good_programs_missing_seeds_and_refuse_what_is_not_hars(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    """A `mira` run of the task's own program that installed nothing stands for good-program `hars`
+    where the folders lack that seed; a run that installed a program, or started from a program file,
+    is refused with the reason."""
+    flawed = load_bench("flawed")
+    root = tmp_path / "out" / "halfcheetah"
+    _run(root / "good" / "hars-sac-s0", [100.0])
+    elsewhere = tmp_path / "learning" / "mira-sac-s1"
+    _run(elsewhere, [300.0])
+    _config(elsewhere)
+    backed_off = elsewhere / "interventions" / "000-step5000"
+    backed_off.mkdir(parents=True)
+    (backed_off / "decision.json").write_text(json.dumps({"accepted": False}))
+    shadowed = tmp_path / "learning" / "hars-sac-s0"                # seed 0 is in the folders: not read
+    _run(shadowed, [999.0])
+    _config(shadowed, method="hars", seed=0)
+
+    reference = flawed.reference_runs("halfcheetah", "sac", [elsewhere, shadowed])
+    assert flawed.finals([root], "good", "hars", "sac", 5000, reference) == {0: 100.0, 1: 300.0}
+    assert flawed.finals([root], "good", "mira", "sac", 5000, reference) == {}
+    assert "Reference: good-program `hars` 200" in flawed.table([root], "halfcheetah", "sac", 5000, ["hars"],
+                                                                 ["header"], reference)
+
+    edited = tmp_path / "learning" / "mira-sac-s2"
+    _run(edited, [300.0])
+    _config(edited, seed=2)
+    (edited / "interventions" / "000-step5000").mkdir(parents=True)
+    (edited / "interventions" / "000-step5000" / "decision.json").write_text(json.dumps({"accepted": True}))
+    with pytest.raises(ValueError, match=r"installed a program \(000-step5000\)"):
+        flawed.reference_runs("halfcheetah", "sac", [edited])
+    flawed_start = tmp_path / "learning" / "hars-sac-s3"
+    _run(flawed_start, [300.0])
+    _config(flawed_start, method="hars", seed=3, program="bench/flawed/halfcheetah/no_progress.json")
+    with pytest.raises(ValueError, match="not the task's own program"):
+        flawed.reference_runs("halfcheetah", "sac", [flawed_start])

@@ -20,10 +20,11 @@ ENV_IDS = {"halfcheetah": "HalfCheetah-v5", "humanoidstandup": "HumanoidStandup-
 
 def make_run(root: Path, task: str, algo: str, method: str, seed: int, curve: Callable[[int], float], *,
              status: str = "finished", last: int = N, diagnostics: bool = False, attention: bool = False,
-             decisions: tuple[tuple[int, bool], ...] = ()) -> Path:
-    run = root / task / algo / method / f"seed{seed}"
+             decisions: tuple[tuple[int, bool], ...] = (), program: str | None = None) -> Path:
+    run = root / task / (Path(program).stem if program else "") / algo / method / f"seed{seed}"
     run.mkdir(parents=True)
-    cfg = {"task": task, "method": method, "algo": algo, "seed": seed, "steps": N}
+    cfg = {"task": task, "method": method, "algo": algo, "seed": seed, "steps": N, "program": program,
+           "eval_every": EVERY}
     card = {"name": task, "env_id": ENV_IDS[task]}
     (run / "config.json").write_text(json.dumps({"config": cfg, "task_card": card}))
     (run / "status.json").write_text(json.dumps({"status": status, "step": last}))
@@ -164,3 +165,64 @@ def test_per_run_plots_only_for_factor_attention(tmp_path: Path) -> None:
     (with_program / "programs" / "v000.json").write_text(json.dumps({"factors": [{"name": "r_vel"}]}))
     write_report([root], tmp_path / "report", bootstrap_reps=200)
     assert sorted(p.name for p in (tmp_path / "report" / "runs").iterdir()) == ["halfcheetah_sac_hars_seed1.png"]
+
+
+def _structural_repair(run: Path, step: int) -> None:
+    """An intervention as the outer loop records it: the returns' evidence, the decision, and the two
+    program versions (the second adds a factor)."""
+    folder = run / "interventions" / f"000-step{step}"
+    folder.mkdir(parents=True)
+    gains = [{"feature": "x_velocity", "form": "value", "cv_r2": 0.99, "gain": 0.62}]
+    (folder / "evidence.json").write_text(json.dumps({
+        "step": step, "cause": "structural", "return_attribution": {"program_cv_r2": 0.37, "feature_gains": gains}}))
+    (folder / "decision.json").write_text(json.dumps({"accepted": True, "operators": ["Add"], "version": 1,
+                                                      "reason": "accepted candidate 0"}))
+    (run / "programs").mkdir()
+    old = [{"name": "r_posture", "code": "def r_posture(s):\n    return -s.pitch ** 2\n"}]
+    new = [*old, {"name": "r_x_velocity", "code": "def r_x_velocity(s):\n    return s.x_velocity\n"}]
+    (run / "programs" / "v000.json").write_text(json.dumps({"factors": old}))
+    (run / "programs" / "v001.json").write_text(json.dumps({"factors": new}))
+
+
+def test_runs_from_program_files_are_their_own_columns_with_their_interventions(tmp_path: Path) -> None:
+    """Runs that differ only in their initial program are not duplicates: each program file is a column
+    and a curve panel of its own, a per-program table lists them, the aggregate counts the task's own
+    program only, and every intervention is listed with its edit and the return around it."""
+    root = tmp_path / "flawed"
+    for s in range(2):
+        make_run(root, "halfcheetah", "sac", "dense", s, lambda t: 100.0)
+        make_run(root, "halfcheetah", "sac", "hars", s, lambda t, s=s: 80.0 + s)
+        make_run(root, "halfcheetah", "sac", "hars", s, lambda t: 3.0, program="/x/flaws/no_progress.json")
+        repaired = make_run(root, "halfcheetah", "sac", "mira", s, lambda t: t / 1000,
+                            program="/x/flaws/no_progress.json")
+        if s == 0:
+            _structural_repair(repaired, 20_000)
+    out = tmp_path / "report"
+    result = write_report([root], out, bootstrap_reps=200)
+    assert not [n for n in result.notes if "duplicate" in n]
+    assert len(result.runs) == 8 and sum(len(c.seeds) for c in result.cells) == 8
+    metrics = {(r["task"], r["program"], r["method"]): r for r in _rows(out / "metrics.csv")}
+    assert float(metrics[("halfcheetah", "", "hars")]["asymptotic_mean"]) == 80.5
+    assert float(metrics[("halfcheetah", "no_progress", "hars")]["asymptotic_mean"]) == 3.0
+    # mira: mean of the 95k and 100k evaluations (95 and 100) on both seeds.
+    assert float(metrics[("halfcheetah", "no_progress", "mira")]["asymptotic_mean"]) == 97.5
+    md = (out / "report.md").read_text()
+    assert "HalfCheetah · no_progress: Asymptotic Perf." in md
+    assert "SAC on HalfCheetah by initial program" in md
+    by_program = {ln.split(" | ")[0]: ln for ln in md.split("by initial program")[1].splitlines()
+                  if ln.startswith("| ")}
+    assert "80.5 [80.0, 81.0] (2)" in by_program["| the task's own"]
+    assert "| 97.5 [97.5, 97.5] (2) | 3.00 [3.00, 3.00] (2) |" in by_program["| no_progress"]
+    agg = {(r["algo"], r["method"]): r for r in _rows(out / "aggregate.csv")}
+    assert agg[("sac", "hars")]["runs"] == "2"  # the flawed program's hars runs are not in the aggregate
+    assert any("program file are left out of the normalised aggregate" in n for n in result.notes)
+    rows = _rows(out / "interventions.csv")
+    assert len(rows) == 1
+    row = rows[0]
+    assert (row["program"], row["method"], row["seed"], row["step"]) == ("no_progress", "mira", "0", "20000")
+    assert row["edit"] == "Add: +r_x_velocity" and row["accepted"] == "1"
+    assert "structural flaw" in row["why"] and "x_velocity" in row["why"]
+    # The evaluations within three intervals: 10k, 15k, 20k before (mean 15); 25k, 30k, 35k after (mean 30).
+    assert float(row["return_before"]) == 15.0 and float(row["return_after"]) == 30.0
+    assert "## Interventions" in md and "halfcheetah[no_progress]/sac/mira/seed0 | 20000 |" in md
+    assert (out / "curves_sac.png").is_file()

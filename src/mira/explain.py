@@ -7,6 +7,7 @@ what SRR proposed and what each check said, what changed, and what the evaluatio
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +56,92 @@ def _decomposition(run: Path) -> list[str]:
     weights = {k[2:]: float(v) for k, v in last.items() if k.startswith("w_") and v not in ("", None)}
     shares = {k[6:]: float(v) for k, v in last.items() if k.startswith("share_") and v not in ("", None)}
     return [_decomposition_line(f"at step {last['step']}", weights, shares, float(last["decomp_r2"]))]
+
+
+def _why(evidence: dict[str, Any]) -> str:
+    """What made an intervention happen, in words: the returns' structural evidence, the monitor's
+    anomaly with its strongest readings, or a periodic review (the no-MCM ablation)."""
+    att = evidence.get("return_attribution") or {}
+    gains = att.get("feature_gains") or []
+    if evidence.get("cause") == "structural" and gains:
+        top = gains[0]
+        shape = top["feature"] if top["form"] == "value" else f"-{top['feature']}²"
+        return (f"the returns show a structural flaw: the program's factors explain the episodic returns out of "
+                f"sample with R² {att['program_cv_r2']:.2f}, with {shape} added {top['cv_r2']:.2f} "
+                f"({top['gain']:+.2f})")
+    if evidence.get("cause", "anomaly") == "anomaly" and evidence.get("guided", True) \
+            and evidence.get("contributors"):
+        why = "; ".join(f"{c['reading']} ({str(c['metric']).upper()} = {c['value']:.2f})"
+                        for c in evidence["contributors"])
+        return f"the monitor flagged a persistent anomaly (S = {_fmt(evidence.get('score'))}): {why}"
+    return "periodic review without diagnostic evidence (no-MCM ablation)"
+
+
+def _factor_codes(path: Path) -> dict[str, str]:
+    """name → code of a stored program version's factors (empty if unreadable)."""
+    data = _load(path) or {}
+    factors = data.get("factors") if isinstance(data, dict) else None
+    return {str(f.get("name")): str(f.get("code", "")) for f in factors or [] if isinstance(f, dict)}
+
+
+@dataclass(frozen=True)
+class Intervention:
+    """One intervention of a run, as a report lists it: when, why, what it installed, and what the
+    evaluation return did around it (the mean of the evaluations within three intervals before and after)."""
+
+    folder: str
+    step: int
+    why: str
+    accepted: bool
+    operators: tuple[str, ...]
+    version: int | None
+    added: tuple[str, ...]
+    removed: tuple[str, ...]
+    changed: tuple[str, ...]
+    reason: str
+    return_before: float | None
+    return_after: float | None
+
+    @property
+    def edit(self) -> str:
+        """The installed edit in a few words (``Add: +r_x_velocity``; ``~`` marks a factor whose code changed),
+        or ``-`` when nothing was installed."""
+        if not self.accepted:
+            return "-"
+        names = ", ".join([*(f"+{n}" for n in self.added), *(f"−{n}" for n in self.removed),
+                           *(f"~{n}" for n in self.changed)])
+        return "+".join(self.operators) + (f": {names}" if names else "")
+
+
+def interventions(run_dir: str | Path) -> list[Intervention]:
+    """Every intervention recorded under ``run_dir/interventions``, in order (unreadable ones skipped)."""
+    run = Path(run_dir)
+    cfg = ((_load(run / "config.json") or {}).get("config") or {})
+    every = int(cfg.get("eval_every", 5000))
+    evals = read_csv(run / "eval.csv")
+    out = []
+    for path in sorted((run / "interventions").glob("*/decision.json")):
+        decision = _load(path)
+        evidence = _load(path.parent / "evidence.json")
+        if not isinstance(decision, dict) or not isinstance(evidence, dict):
+            continue
+        step = int(evidence.get("step", decision.get("step", 0)) or 0)
+        version = decision.get("version")
+        accepted = bool(decision.get("accepted"))
+        added: tuple[str, ...] = ()
+        removed: tuple[str, ...] = ()
+        changed: tuple[str, ...] = ()
+        if accepted and isinstance(version, int) and version > 0:
+            new = _factor_codes(run / "programs" / f"v{version:03d}.json")
+            old = _factor_codes(run / "programs" / f"v{version - 1:03d}.json")
+            added = tuple(n for n in new if n not in old)
+            removed = tuple(n for n in old if n not in new)
+            changed = tuple(n for n in new if n in old and new[n] != old[n])
+        out.append(Intervention(
+            path.parent.name, step, _why(evidence), accepted, tuple(decision.get("operators") or ()),
+            version if isinstance(version, int) else None, added, removed, changed, str(decision.get("reason", "")),
+            _mean_return(evals, step - 3 * every, step), _mean_return(evals, step, step + 3 * every)))
+    return out
 
 
 def explain(run_dir: str | Path) -> str:
@@ -114,22 +201,7 @@ def explain(run_dir: str | Path) -> str:
         step = int(evidence.get("step", 0))
         lines.append("")
         lines.append(f"Intervention {folder.name} at step {step}:")
-        att = evidence.get("return_attribution") or {}
-        gains = att.get("feature_gains") or []
-        if evidence.get("cause") == "structural" and gains:
-            top = gains[0]
-            shape = top["feature"] if top["form"] == "value" else f"-{top['feature']}²"
-            lines.append(f"  why: the returns show a structural flaw: the program's factors explain the episodic "
-                         f"returns out of sample with R² {att['program_cv_r2']:.2f}, with {shape} added "
-                         f"{top['cv_r2']:.2f} ({top['gain']:+.2f}).")
-        elif evidence.get("cause", "anomaly") == "anomaly" and evidence.get("guided", True) \
-                and evidence.get("contributors"):
-            why = "; ".join(f"{c['reading']} ({str(c['metric']).upper()} = {c['value']:.2f})"
-                            for c in evidence["contributors"])
-            score = evidence.get("score")
-            lines.append(f"  why: the monitor flagged a persistent anomaly (S = {_fmt(score)}): {why}.")
-        else:
-            lines.append("  why: periodic review without diagnostic evidence (no-MCM ablation).")
+        lines.append(f"  why: {_why(evidence)}.")
         hyps = evidence.get("hypotheses") or []
         if hyps:
             lines.append("  hypotheses: " + ", ".join(f"{h['operator']} ({h['because']})" for h in hyps[:3]))

@@ -95,19 +95,31 @@ def plot_learning_curves(
     panel_titles: Mapping[str, str],
     method_titles: Mapping[str, str],
     methods: Sequence[str],
+    marks: Mapping[str, Sequence[tuple[float, str]]] | None = None,
 ) -> None:
-    """One panel per task, one line per method (mean over seeds) with a ±1 std band."""
+    """One panel per task (or task and initial program), one line per method (mean over seeds) with a
+    ±1 std band; ``marks`` ((step, method) per panel) draws a dashed line in the method's colour at each
+    step where a run of that panel installed a program. More than four panels wrap onto further rows."""
     import matplotlib
     from matplotlib.ticker import FuncFormatter
 
     tasks = list(panels)
     n = max(1, len(tasks))
+    cols = min(n, 4)
+    rows = -(-n // cols)
     with matplotlib.rc_context(STYLE):
-        width = FIGSIZE[0] if n <= 2 else 4.2 * n + 1.8
-        fig, _ = _figure(width, FIGSIZE[1])
-        axes = fig.subplots(1, n, squeeze=False)[0]
+        width = FIGSIZE[0] if cols <= 2 else 4.2 * cols + 1.8
+        height = FIGSIZE[1] * (1 if rows == 1 else 0.85 * rows)
+        fig, _ = _figure(width, height)
+        axes = list(fig.subplots(rows, cols, squeeze=False).flat)
+        for ax in axes[len(tasks):]:
+            ax.set_visible(False)
         handles: dict[str, Any] = {}
-        for i, (ax, task) in enumerate(zip(axes, tasks, strict=True)):
+        for i, (ax, task) in enumerate(zip(axes, tasks, strict=False)):
+            drawn: list[tuple[np.ndarray, np.ndarray]] = []
+            for step, method in sorted(set((marks or {}).get(task, ()))):
+                colour = method_colour(method, methods.index(method) if method in methods else 0)
+                handles["__mark__"] = ax.axvline(step, color=colour, lw=0.9, ls="--", alpha=0.7)
             for j, method in enumerate(methods):
                 curves = panels[task].get(method)
                 if not curves:
@@ -115,22 +127,34 @@ def plot_learning_curves(
                 steps, mean, std, _ = band(curves)
                 colour = method_colour(method, j)
                 marker = "o" if len(steps) <= 25 else None
-                (line,) = ax.plot(steps, mean, color=colour, lw=1.8, marker=marker, ms=3.5,
+                # A method whose runs repeat an earlier one's (MIRA with no edit is HARS bit for bit) would
+                # hide that curve: it is drawn dashed on top.
+                same = any(np.array_equal(steps, s) and np.array_equal(mean, m) for s, m in drawn)
+                drawn.append((steps, mean))
+                (line,) = ax.plot(steps, mean, color=colour, lw=1.8, marker=marker, ms=3.5, ls="--" if same else "-",
                                   label=method_titles.get(method, method))
                 ax.fill_between(steps, mean - std, mean + std, color=colour, alpha=0.15, lw=0)
                 handles.setdefault(method, line)
             letter = chr(ord("a") + i) if i < 26 else str(i)
             ax.set_title(f"({letter}) {panel_titles.get(task, task)}")
             ax.set_xlabel("environment steps")
-            if i == 0:
+            if i % cols == 0:
                 ax.set_ylabel("episodic return")
             ax.xaxis.set_major_formatter(FuncFormatter(steps_label))
             ax.grid(True, alpha=0.3)
         fig.suptitle(title)
         ordered = [m for m in methods if m in handles]
-        right = 1.0 - 1.9 / width
-        fig.subplots_adjust(left=0.75 / width, right=right, bottom=0.15, top=0.83, wspace=0.28)
-        fig.legend([handles[m] for m in ordered], [method_titles.get(m, m) for m in ordered],
+        labels = [method_titles.get(m, m) for m in ordered]
+        if "__mark__" in handles:
+            ordered.append("__mark__")
+            labels.append("program installed")
+        right = 1.0 - 2.4 / width
+        if rows == 1:
+            fig.subplots_adjust(left=0.75 / width, right=right, bottom=0.15, top=0.83, wspace=0.28)
+        else:
+            fig.subplots_adjust(left=0.75 / width, right=right, bottom=0.6 / height, top=1 - 0.7 / height,
+                                wspace=0.28, hspace=0.5)
+        fig.legend([handles[m] for m in ordered], labels,
                    loc="center left", bbox_to_anchor=(right + 0.01, 0.5), frameon=False)
         _save(fig, path)
 

@@ -15,7 +15,14 @@
   method; ``ablation_<algo>.png`` — Figure 5 (MIRA vs. w/o MCM vs. w/o SRR) when they are present;
 - ``runs/<task>_<algo>_<method>_seed<k>.png`` — per run, MCM's anomaly score with threshold,
   triggers and accepted/rejected SRR edits, and each factor's attention weight, when the run has
-  ``diagnostics.csv`` or ``attn_*`` columns in ``train.csv``.
+  ``diagnostics.csv`` or ``attn_*`` columns in ``train.csv``;
+- ``interventions.csv`` — one row per intervention of any run: step, why, the edit installed (if
+  any), and the evaluation return before and after it.
+
+A run started from a program file (``mira train --program FILE``) is told apart from the runs of the
+task's own program: its column and curve panel are the task and the file's stem ("HalfCheetah ·
+wrong_gate"), with the steps where a run installed a new program marked; the normalised aggregate
+counts the task's own program only.
 
 Only complete runs (status finished at their step budget) enter tables and curves unless
 ``include_incomplete`` is set; the others are listed in the notes. Metric definitions are in
@@ -41,6 +48,7 @@ from mira.experiments import metrics as M
 from mira.experiments.grid import order_methods, task_label
 from mira.experiments.plots import Curve, plot_learning_curves, plot_run_diagnostics
 from mira.experiments.runs import read_json
+from mira.explain import interventions
 from mira.runio.atomic import atomic_write_text
 from mira.runio.csvlog import read_csv
 
@@ -74,10 +82,16 @@ class RunRecord:
     eval_steps: list[int]
     eval_returns: list[float]
     wall_s: float | None
+    program: str = ""
+    """The stem of the initial program file the run started from; "" for the task's own program."""
+
+    @property
+    def panel(self) -> str:
+        return panel_key(self.task, self.program)
 
     @property
     def run_id(self) -> str:
-        return f"{self.task}/{self.algo}/{self.method}/seed{self.seed}"
+        return f"{self.panel}/{self.algo}/{self.method}/seed{self.seed}"
 
     @property
     def complete(self) -> bool:
@@ -105,6 +119,16 @@ class CellStats:
     se_std: float | None
     reached: int
     wall_mean: float | None
+    program: str = ""
+
+    @property
+    def panel(self) -> str:
+        return panel_key(self.task, self.program)
+
+
+def panel_key(task: str, program: str) -> str:
+    """A table column and figure panel: the task, or the task started from a named initial program."""
+    return f"{task}[{program}]" if program else task
 
 
 @dataclass
@@ -158,6 +182,7 @@ def load_run(path: Path) -> RunRecord:
         cfg = saved["config"]
         task, title = _task_title(cfg["task"], saved.get("task_card"))
         method, algo, seed, steps = str(cfg["method"]), str(cfg["algo"]), int(cfg["seed"]), int(cfg["steps"])
+        program = Path(str(cfg["program"])).stem if cfg.get("program") else ""
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise UsageError(f"{path}/config.json is unusable ({exc})") from None
     try:
@@ -179,7 +204,8 @@ def load_run(path: Path) -> RunRecord:
             wall = float(r.get("wall_s") or "nan")
     final_step = int(status.get("step") or (steps_l[-1] if steps_l else 0)) if isinstance(status, dict) else 0
     return RunRecord(path, task, title, method, algo, seed, steps, str(status.get("status", "unknown")),
-                     final_step, steps_l, rets, wall if wall is not None and math.isfinite(wall) else None)
+                     final_step, steps_l, rets, wall if wall is not None and math.isfinite(wall) else None,
+                     program)
 
 
 # ------------------------------------------------------------------------------------- computing
@@ -192,12 +218,13 @@ def _ordered(values: Iterable[str], preferred: Sequence[str]) -> list[str]:
 
 def compute_cells(runs: Sequence[RunRecord], *, reps: int = 20_000,
                   seed: int = 0) -> tuple[list[CellStats], list[str]]:
-    """Per (algo, task, method): metrics over seeds, with the Dense oracle of the same task and algo."""
+    """Per (algo, task, initial program, method): metrics over seeds, with the Dense oracle of the same
+    task and algo (from the same initial program if it has one, else the task's own)."""
     notes: list[str] = []
-    groups: dict[tuple[str, str, str], list[RunRecord]] = {}
+    groups: dict[tuple[str, str, str, str], list[RunRecord]] = {}
     for r in runs:
-        groups.setdefault((r.algo, r.task, r.method), []).append(r)
-    asym: dict[tuple[str, str, str], list[float]] = {}
+        groups.setdefault((r.algo, r.task, r.program, r.method), []).append(r)
+    asym: dict[tuple[str, str, str, str], list[float]] = {}
     for key, rs in groups.items():
         rs.sort(key=lambda r: r.seed)
         budgets = sorted({r.steps for r in rs})
@@ -206,10 +233,10 @@ def compute_cells(runs: Sequence[RunRecord], *, reps: int = 20_000,
         asym[key] = [M.asymptotic_performance(r.eval_steps, r.eval_returns, r.steps) for r in rs]
     cells: list[CellStats] = []
     for key, rs in groups.items():
-        algo, task, method = key
+        algo, task, program, method = key
         values = asym[key]
-        oracle_key = (algo, task, ORACLE)
-        oracle = M.mean_std(asym[oracle_key])[0] if oracle_key in asym else None
+        oracle_key = next((k for k in ((algo, task, program, ORACLE), (algo, task, "", ORACLE)) if k in asym), None)
+        oracle = M.mean_std(asym[oracle_key])[0] if oracle_key else None
         threshold = M.oracle_threshold(oracle) if oracle is not None else None
         se = [M.sample_efficiency(r.eval_steps, r.eval_returns, threshold) if threshold is not None else None
               for r in rs]
@@ -219,9 +246,9 @@ def compute_cells(runs: Sequence[RunRecord], *, reps: int = 20_000,
         walls = [r.wall_s for r in rs if r.wall_s is not None]
         cells.append(CellStats(algo, task, method, [r.seed for r in rs], values, mean, std, point, low, high,
                                oracle, threshold, se, se_mean, se_std, reached,
-                               sum(walls) / len(walls) if walls else None))
-    for algo, task in sorted({(a, t) for a, t, _ in groups}):
-        if (algo, task, ORACLE) not in groups:
+                               sum(walls) / len(walls) if walls else None, program))
+    for algo, task in sorted({(a, t) for a, t, _, _ in groups}):
+        if not any(k[:2] == (algo, task) and k[3] == ORACLE for k in groups):
             notes.append(f"{algo.upper()} {task}: no Dense oracle runs, so sample efficiency is n/a")
     return cells, notes
 
@@ -234,8 +261,12 @@ def aggregate(cells: Sequence[CellStats], *, reps: int = 20_000,
     rows: list[dict[str, Any]] = []
     notes: list[str] = []
     by_algo: dict[str, list[CellStats]] = {}
+    if any(c.program for c in cells):
+        notes.append("runs started from a program file are left out of the normalised aggregate (it counts "
+                     "each task's own program)")
     for c in cells:
-        by_algo.setdefault(c.algo, []).append(c)
+        if not c.program:
+            by_algo.setdefault(c.algo, []).append(c)
     for algo in _ordered(by_algo, ALGO_ORDER):
         skipped = sorted({c.task for c in by_algo[algo] if c.oracle is None or c.oracle <= 0})
         if skipped:
@@ -328,10 +359,10 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                          + ", ".join(str(p) for p in paths))
     records = [load_run(p) for p in run_dirs]
     result.runs = records
-    seen: dict[tuple[str, str, str, int], Path] = {}
+    seen: dict[tuple[str, str, str, str, int], Path] = {}
     used: list[RunRecord] = []
     for r in records:
-        key = (r.algo, r.task, r.method, r.seed)
+        key = (r.algo, r.task, r.program, r.method, r.seed)
         if key in seen:
             result.notes.append(f"{r.run_id}: duplicate of {seen[key]}; {r.path} is left out")
             continue
@@ -358,18 +389,25 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
 
     write("runs.csv", _csv_text(
         ["algo", "task", "method", "seed", "steps", "status", "final_step", "used", "asymptotic",
-         "sample_eff_steps", "wall_s"],
+         "sample_eff_steps", "wall_s", "program"],
         _run_rows(records, used, cells)))
     write("metrics.csv", _csv_text(
         ["algo", "task", "method", "seeds", "asymptotic_mean", "asymptotic_std", "asymptotic_iqm",
          "asymptotic_iqm_ci_low", "asymptotic_iqm_ci_high", "oracle_asymptotic", "threshold",
-         "sample_eff_steps_mean", "sample_eff_steps_std", "reached", "wall_s_mean"],
+         "sample_eff_steps_mean", "sample_eff_steps_std", "reached", "wall_s_mean", "program"],
         ([c.algo, c.task, c.method, len(c.seeds), c.asym_mean, c.asym_std, c.iqm, c.iqm_low, c.iqm_high,
-          c.oracle, c.threshold, c.se_mean, c.se_std, c.reached, c.wall_mean] for c in _sorted_cells(cells))))
+          c.oracle, c.threshold, c.se_mean, c.se_std, c.reached, c.wall_mean, c.program]
+         for c in _sorted_cells(cells))))
     agg_cols = ["algo", "method", "tasks", "runs", "normalized_iqm", "ci_low", "ci_high"]
     write("aggregate.csv", _csv_text(agg_cols, ([r[k] for k in agg_cols] for r in agg_rows)))
 
-    titles = {r.task: r.task_title for r in used}
+    stories = {id(r): interventions(r.path) for r in used}
+    rows_iv = [[r.algo, r.task, r.program, r.method, r.seed, i.step, i.why, i.edit, int(i.accepted),
+                i.return_before, i.return_after] for r in used for i in stories[id(r)]]
+    write("interventions.csv", _csv_text(["algo", "task", "program", "method", "seed", "step", "why", "edit",
+                                          "accepted", "return_before", "return_after"], rows_iv))
+    task_titles = {r.task: r.task_title for r in used}
+    titles = {r.panel: r.task_title + (f" · {r.program}" if r.program else "") for r in used}
     md: list[str] = ["# MIRA experiment report\n",
                      f"{len(used)} runs in the tables ({len(records)} found). Asymptotic performance: mean "
                      "evaluation return over the final 10% of training (eval rows with step > 0.9·N, at "
@@ -381,9 +419,9 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                      "return of the deterministic policy; shaping never enters them.\n"]
     for algo in _ordered({c.algo for c in cells}, ALGO_ORDER):
         acells = [c for c in cells if c.algo == algo]
-        tasks = _ordered({c.task for c in acells}, TASK_ORDER)
+        tasks = _panels(acells)
         methods = order_methods(c.method for c in acells)
-        by = {(c.task, c.method): c for c in acells}
+        by = {(c.panel, c.method): c for c in acells}
         header = ["Method"]
         for t in tasks:
             header += [f"{titles.get(t, t)}: Asymptotic Perf.", f"{titles.get(t, t)}: Sample Eff. (×10^5)"]
@@ -425,6 +463,17 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
             iqm_rows.append(row)
         md += ["IQM of asymptotic performance over seeds [95% bootstrap CI]:\n",
                _md_table(["Method", *(titles.get(t, t) for t in tasks)], iqm_rows)]
+        for task in sorted({c.task for c in acells if c.program}):
+            # The same IQMs turned round: one row per initial program, the layout of a flawed-program study.
+            own = [t for t in tasks if t == task or t.startswith(f"{task}[")]
+            cols = [m for m in methods if any((t, m) in by for t in own)]
+            md += [f"{algo.upper()} on {task_titles.get(task, task)} by initial program "
+                   "(IQM [95% CI] over seeds, seeds):\n",
+                   _md_table(["Initial program", *(METHOD_TITLES.get(m, m) for m in cols)],
+                             [[t[len(task) + 1:-1] or "the task's own", *(
+                                 f"{fmt_return(c.iqm)} [{fmt_return(c.iqm_low, c.iqm)}, "
+                                 f"{fmt_return(c.iqm_high, c.iqm)}] ({len(c.seeds)})" if c else ""
+                                 for c in (by.get((t, m)) for m in cols))] for t in own])]
         arows = [r for r in agg_rows if r["algo"] == algo]
         if arows:
             md += ["Oracle-normalised asymptotic performance, IQM over all tasks and seeds "
@@ -434,12 +483,14 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                                f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}]", str(r["runs"])] for r in arows])]
         if plots:
             panels = {t: {m: [Curve(r.eval_steps, r.eval_returns) for r in used
-                              if (r.algo, r.task, r.method) == (algo, t, m)] for m in methods} for t in tasks}
+                              if (r.algo, r.panel, r.method) == (algo, t, m)] for m in methods} for t in tasks}
+            marks = {t: [(i.step, r.method) for r in used if (r.algo, r.panel) == (algo, t)
+                         for i in stories[id(r)] if i.accepted] for t in tasks}
             fig = out / f"curves_{algo}.png"
             plot_learning_curves(panels, fig,
                                  title=f"{algo.upper()}: evaluation return, "
                                        + ("one seed" if n_seeds == [1] else "mean ± 1 std over seeds"),
-                                 panel_titles=titles, method_titles=METHOD_TITLES, methods=methods)
+                                 panel_titles=titles, method_titles=METHOD_TITLES, methods=methods, marks=marks)
             result.files.append(fig)
             md.append(f"![{algo.upper()} learning curves]({fig.name})\n")
             abl_tasks = [t for t in tasks if "mira" in panels[t] and panels[t]["mira"]
@@ -449,9 +500,18 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                 plot_learning_curves({t: {m: panels[t].get(m, []) for m in ABLATION} for t in abl_tasks}, fig,
                                      title=f"Ablation ({algo.upper()}): MIRA vs. w/o MCM vs. w/o SRR, "
                                            "mean ± 1 std", panel_titles=titles, method_titles=METHOD_TITLES,
-                                     methods=ABLATION)
+                                     methods=ABLATION, marks=marks)
                 result.files.append(fig)
                 md += [f"### Ablation ({algo.upper()}, Figure 5 layout)\n", f"![ablation]({fig.name})\n"]
+    if rows_iv:
+        md += ["## Interventions\n",
+               "Every intervention of the tabulated runs: why it happened, the edit installed (`+` a factor "
+               "added, `~` one rewritten; `-` nothing installed), and the mean evaluation return over the "
+               "three evaluation intervals before and after it.\n",
+               _md_table(["Run", "Step", "Why", "Edit", "Return before → after"],
+                         [[r.run_id, str(i.step), i.why, i.edit,
+                           f"{fmt_return(i.return_before)} → {fmt_return(i.return_after)}"]
+                          for r in used for i in stories[id(r)]])]
     if plots:
         diag = _run_diagnostic_plots(used, out, result)
         if diag:
@@ -464,31 +524,38 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
     return result
 
 
+def _panels(items: Iterable[CellStats | RunRecord]) -> list[str]:
+    """Panel keys in table order: tasks as ``TASK_ORDER`` has them, each task's own program first."""
+    pairs = {(i.task, i.program) for i in items}
+    tasks = _ordered((t for t, _ in pairs), TASK_ORDER)
+    return [panel_key(t, p) for t, p in sorted(pairs, key=lambda tp: (tasks.index(tp[0]), tp[1] != "", tp[1]))]
+
+
 def _sorted_cells(cells: Sequence[CellStats]) -> list[CellStats]:
     algos = _ordered({c.algo for c in cells}, ALGO_ORDER)
-    tasks = _ordered({c.task for c in cells}, TASK_ORDER)
+    panels = _panels(cells)
     methods = order_methods(c.method for c in cells)
-    return sorted(cells, key=lambda c: (algos.index(c.algo), tasks.index(c.task), methods.index(c.method)))
+    return sorted(cells, key=lambda c: (algos.index(c.algo), panels.index(c.panel), methods.index(c.method)))
 
 
 def _run_rows(records: Sequence[RunRecord], used: Sequence[RunRecord],
               cells: Sequence[CellStats]) -> list[list[Any]]:
-    by = {(c.algo, c.task, c.method): c for c in cells}
+    by = {(c.algo, c.panel, c.method): c for c in cells}
     used_ids = {id(r) for r in used}
     rows = []
     algos = _ordered({r.algo for r in records}, ALGO_ORDER)
-    tasks = _ordered({r.task for r in records}, TASK_ORDER)
+    panels = _panels(records)
     methods = order_methods(r.method for r in records)
-    for r in sorted(records, key=lambda r: (algos.index(r.algo), tasks.index(r.task), methods.index(r.method),
+    for r in sorted(records, key=lambda r: (algos.index(r.algo), panels.index(r.panel), methods.index(r.method),
                                             r.seed, str(r.path))):
         asym: float | None = None
         se: int | None = None
-        c = by.get((r.algo, r.task, r.method))
+        c = by.get((r.algo, r.panel, r.method))
         if id(r) in used_ids and c is not None and r.seed in c.seeds:
             i = c.seeds.index(r.seed)
             asym, se = c.asymptotic[i], c.sample_eff[i]
         rows.append([r.algo, r.task, r.method, r.seed, r.steps, r.status, r.final_step,
-                     int(id(r) in used_ids), asym, se, r.wall_s])
+                     int(id(r) in used_ids), asym, se, r.wall_s, r.program])
     return rows
 
 
@@ -515,8 +582,9 @@ def _run_diagnostic_plots(runs: Sequence[RunRecord], out: Path,
                 factors.update(str(f["name"]) for f in data.get("factors", []) if isinstance(f, dict))
             except (OSError, ValueError, KeyError, TypeError, AttributeError):
                 continue
-        path = out / "runs" / f"{r.task}_{r.algo}_{r.method}_seed{r.seed}.png"
-        title = f"{r.task_title} · {r.algo.upper()} · {METHOD_TITLES.get(r.method, r.method)} · seed {r.seed}"
+        path = out / "runs" / f"{r.task}{f'-{r.program}' if r.program else ''}_{r.algo}_{r.method}_seed{r.seed}.png"
+        title = (f"{r.task_title}{f' · {r.program}' if r.program else ''} · {r.algo.upper()} · "
+                 f"{METHOD_TITLES.get(r.method, r.method)} · seed {r.seed}")
         if plot_run_diagnostics(path, title=title, diagnostics=diagnostics, train_rows=train_rows,
                                 decisions=decisions, factors=sorted(factors) or None,
                                 returns=Curve(r.eval_steps, r.eval_returns)):
