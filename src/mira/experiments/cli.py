@@ -75,8 +75,10 @@ def add_report_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register ``report``: Table 2/3-style tables, Figure 3–5-style plots, per-run MCM plots."""
     p: argparse.ArgumentParser = subparsers.add_parser(
         "report", help="tables and plots of runs or sweeps",
-        description="Write report.md, table_<algo>.md/.csv, metrics.csv, aggregate.csv, runs.csv and PNG "
-                    "figures for every run directory found under the given paths.",
+        description="Write report.md, table_<algo>.md/.csv, metrics.csv, aggregate.csv, runs.csv, "
+                    "interventions.csv and PNG figures for every run directory found under the given paths. "
+                    "Runs started from a program file (mira train --program) get a column and a curve "
+                    "panel per file.",
     )
     p.add_argument("paths", nargs="+", metavar="DIR", help="run directories and/or sweep directories")
     p.add_argument("--out", required=True, help="report directory")
