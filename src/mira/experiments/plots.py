@@ -115,11 +115,12 @@ def plot_learning_curves(
         for ax in axes[len(tasks):]:
             ax.set_visible(False)
         handles: dict[str, Any] = {}
+        mark_line: Any = None
         for i, (ax, task) in enumerate(zip(axes, tasks, strict=False)):
             drawn: list[tuple[np.ndarray, np.ndarray]] = []
             for step, method in sorted(set((marks or {}).get(task, ()))):
                 colour = method_colour(method, methods.index(method) if method in methods else 0)
-                handles["__mark__"] = ax.axvline(step, color=colour, lw=0.9, ls="--", alpha=0.7)
+                mark_line = ax.axvline(step, color=colour, lw=0.9, ls="--", alpha=0.7)
             for j, method in enumerate(methods):
                 curves = panels[task].get(method)
                 if not curves:
@@ -144,9 +145,10 @@ def plot_learning_curves(
             ax.grid(True, alpha=0.3)
         fig.suptitle(title)
         ordered = [m for m in methods if m in handles]
+        lines = [handles[m] for m in ordered]
         labels = [method_titles.get(m, m) for m in ordered]
-        if "__mark__" in handles:
-            ordered.append("__mark__")
+        if mark_line is not None:
+            lines.append(mark_line)
             labels.append("program installed")
         right = 1.0 - 2.4 / width
         if rows == 1:
@@ -154,7 +156,7 @@ def plot_learning_curves(
         else:
             fig.subplots_adjust(left=0.75 / width, right=right, bottom=0.6 / height, top=1 - 0.7 / height,
                                 wspace=0.28, hspace=0.5)
-        fig.legend([handles[m] for m in ordered], labels,
+        fig.legend(lines, labels,
                    loc="center left", bbox_to_anchor=(right + 0.01, 0.5), frameon=False)
         _save(fig, path)
 

@@ -90,6 +90,10 @@ class RunRecord:
         return panel_key(self.task, self.program)
 
     @property
+    def panel_title(self) -> str:
+        return self.task_title + (f" · {self.program}" if self.program else "")
+
+    @property
     def run_id(self) -> str:
         return f"{self.panel}/{self.algo}/{self.method}/seed{self.seed}"
 
@@ -407,7 +411,7 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
     write("interventions.csv", _csv_text(["algo", "task", "program", "method", "seed", "step", "why", "edit",
                                           "accepted", "return_before", "return_after"], rows_iv))
     task_titles = {r.task: r.task_title for r in used}
-    titles = {r.panel: r.task_title + (f" · {r.program}" if r.program else "") for r in used}
+    titles = {r.panel: r.panel_title for r in used}
     md: list[str] = ["# MIRA experiment report\n",
                      f"{len(used)} runs in the tables ({len(records)} found). Asymptotic performance: mean "
                      "evaluation return over the final 10% of training (eval rows with step > 0.9·N, at "
@@ -463,14 +467,15 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
             iqm_rows.append(row)
         md += ["IQM of asymptotic performance over seeds [95% bootstrap CI]:\n",
                _md_table(["Method", *(titles.get(t, t) for t in tasks)], iqm_rows)]
+        program_of = {c.panel: (c.task, c.program) for c in acells}
         for task in sorted({c.task for c in acells if c.program}):
             # The same IQMs turned round: one row per initial program, the layout of a flawed-program study.
-            own = [t for t in tasks if t == task or t.startswith(f"{task}[")]
+            own = [t for t in tasks if program_of[t][0] == task]
             cols = [m for m in methods if any((t, m) in by for t in own)]
             md += [f"{algo.upper()} on {task_titles.get(task, task)} by initial program "
                    "(IQM [95% CI] over seeds, seeds):\n",
                    _md_table(["Initial program", *(METHOD_TITLES.get(m, m) for m in cols)],
-                             [[t[len(task) + 1:-1] or "the task's own", *(
+                             [[program_of[t][1] or "the task's own", *(
                                  f"{fmt_return(c.iqm)} [{fmt_return(c.iqm_low, c.iqm)}, "
                                  f"{fmt_return(c.iqm_high, c.iqm)}] ({len(c.seeds)})" if c else ""
                                  for c in (by.get((t, m)) for m in cols))] for t in own])]
@@ -583,8 +588,7 @@ def _run_diagnostic_plots(runs: Sequence[RunRecord], out: Path,
             except (OSError, ValueError, KeyError, TypeError, AttributeError):
                 continue
         path = out / "runs" / f"{r.task}{f'-{r.program}' if r.program else ''}_{r.algo}_{r.method}_seed{r.seed}.png"
-        title = (f"{r.task_title}{f' · {r.program}' if r.program else ''} · {r.algo.upper()} · "
-                 f"{METHOD_TITLES.get(r.method, r.method)} · seed {r.seed}")
+        title = f"{r.panel_title} · {r.algo.upper()} · {METHOD_TITLES.get(r.method, r.method)} · seed {r.seed}"
         if plot_run_diagnostics(path, title=title, diagnostics=diagnostics, train_rows=train_rows,
                                 decisions=decisions, factors=sorted(factors) or None,
                                 returns=Curve(r.eval_steps, r.eval_returns)):
