@@ -33,6 +33,7 @@ import numpy as np
 from learning import final_return, run_ours  # type: ignore[import-not-found]
 from mira.cli import cpu_model
 from mira.experiments.metrics import stratified_bootstrap_ci
+from mira.explain import interventions as explain_interventions
 from mira.runio.csvlog import read_csv
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -120,25 +121,11 @@ def iqm(values: list[float]) -> tuple[float, float, float]:
 
 
 def interventions(run: Path) -> list[str]:
-    """One line per intervention of a run: step, what the evidence named, the edit, the decision."""
-    lines = []
-    for folder in sorted((run / "interventions").glob("*-step*")):
-        step = folder.name.rpartition("-step")[2]
-        try:
-            decision = json.loads((folder / "decision.json").read_text())
-            evidence = json.loads((folder / "evidence.json").read_text())
-        except (OSError, ValueError):
-            continue
-        att = evidence.get("return_attribution") or {}
-        gains = att.get("feature_gains") or []
-        shape = "" if not gains else gains[0]["feature"] if gains[0]["form"] == "value" else f"-{gains[0]['feature']}²"
-        named = (f"returns: R² {att['program_cv_r2']:.2f}, {shape} +{gains[0]['gain']:.2f}"
-                 if gains and evidence.get("cause") == "structural" else "monitor anomaly"
-                 if evidence.get("cause", "anomaly") == "anomaly" else "periodic review")
-        what = "+".join(decision.get("operators") or []) or "-"
-        verdict = f"installed v{decision['version']}" if decision.get("accepted") else "backed off"
-        lines.append(f"{step} ({named}): {what}, {verdict}")
-    return lines
+    """One line per intervention of a run (:func:`mira.explain.interventions`): step, the edit, the
+    decision, and why it happened."""
+    return [f"{i.step}: {i.edit if i.accepted else 'nothing installed'}, "
+            f"{f'installed v{i.version}' if i.accepted else 'backed off'} ({i.why})"
+            for i in explain_interventions(run)]
 
 
 def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[str], header: list[str],

@@ -21,10 +21,10 @@ STYLE: Any = {"font.size": 11, "axes.titlesize": 12, "axes.labelsize": 11, "lege
 
 # One fixed colour per method across every figure of a report.
 METHOD_COLOURS = {
-    "dense": "#000000", "mira": "#d62728", "mira-no-mcm": "#ff9896", "mira-no-srr": "#9467bd",
+    "dense": "#000000", "hars": "#17becf", "mira": "#d62728", "mira-no-mcm": "#ff9896", "mira-no-srr": "#9467bd",
     "lare": "#1f77b4", "rd": "#2ca02c", "ircr": "#ff7f0e", "vib": "#8c564b", "sparse": "#7f7f7f",
 }
-_SPARE = ["#17becf", "#bcbd22", "#e377c2", "#aec7e8", "#98df8a", "#c5b0d5"]
+_SPARE = ["#bcbd22", "#e377c2", "#aec7e8", "#98df8a", "#c5b0d5"]
 
 
 NON_FACTOR_ATTN = {"attn_entropy", "attn_mean", "attn_max", "attn_min"}
