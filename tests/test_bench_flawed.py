@@ -103,3 +103,33 @@ def test_reference_runs_fill_the_good_programs_missing_seeds_and_refuse_what_is_
     _config(flawed_start, method="hars", seed=3, program="bench/flawed/halfcheetah/no_progress.json")
     with pytest.raises(ValueError, match="not the task's own program"):
         flawed.reference_runs("halfcheetah", "sac", [flawed_start])
+
+
+def test_the_table_tells_each_mira_runs_interventions_from_its_records(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    flawed = load_bench("flawed")
+    root = tmp_path / "out" / "halfcheetah"
+    _run(root / "good" / "hars-sac-s0", [100.0, 100.0])
+    _run(root / "no_progress" / "hars-sac-s0", [1.0, 1.0])
+    run = root / "no_progress" / "mira-sac-s0"
+    _run(run, [1.0, 90.0])
+    _config(run, seed=0, eval_every=5000)
+    (run / "programs").mkdir()
+    (run / "programs" / "v000.json").write_text(json.dumps({"factors": [{"name": "r_a", "code": "a"}]}))
+    (run / "programs" / "v001.json").write_text(json.dumps(
+        {"factors": [{"name": "r_a", "code": "a"}, {"name": "r_speed", "code": "b"}]}))
+    repaired, refused = run / "interventions" / "000-step6000", run / "interventions" / "001-step9000"
+    for folder, accepted in ((repaired, True), (refused, False)):
+        folder.mkdir(parents=True)
+        (folder / "decision.json").write_text(json.dumps(
+            {"accepted": accepted, "operators": ["Add"] if accepted else [], "version": 1 if accepted else None}))
+    (repaired / "evidence.json").write_text(json.dumps({"step": 6000, "cause": "structural", "return_attribution": {
+        "program_cv_r2": -0.5, "feature_gains": [{"feature": "speed", "form": "value", "cv_r2": 0.9, "gain": 1.4}]}}))
+    (refused / "evidence.json").write_text(json.dumps({"step": 9000, "cause": "periodic", "guided": False}))
+
+    text = flawed.table([root], "halfcheetah", "sac", 10_000, ["hars", "mira"], ["header"])
+    story = [line.strip() for line in text.split("Interventions of the `mira` runs:")[1].strip().splitlines()]
+    assert story[0].startswith("* no_progress s0: step 6000: Add: +r_speed, installed v1 (the returns show a "
+                               "structural flaw")
+    assert "with speed added 0.90 (+1.40)" in story[0]
+    assert story[1].startswith("* no_progress s0: step 9000: nothing installed, backed off (periodic review")
