@@ -147,7 +147,8 @@ def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[st
                 continue
             point, lo, hi = iqm(list(per_seed.values()))
             ratios[name, method] = point / good if good and np.isfinite(good) else float("nan")
-            cells.append(f"{point:.0f} [{lo:.0f}, {hi:.0f}] ({ratios[name, method]:.0%}, {len(per_seed)} s)")
+            shown = round(ratios[name, method], 2) + 0.0  # a ratio that rounds to zero reads "0%", not "-0%"
+            cells.append(f"{point:.0f} [{lo:.0f}, {hi:.0f}] ({shown:.0%}, {len(per_seed)} s)")
         kind = "-" if name == GOOD else entries[name]["kind"]
         lines.append(f"| {name} | {kind} | " + " | ".join(cells) + " |")
     structural = [n for n, e in entries.items() if e["kind"] == "structural"]
