@@ -167,6 +167,18 @@ def test_per_run_plots_only_for_factor_attention(tmp_path: Path) -> None:
     assert sorted(p.name for p in (tmp_path / "report" / "runs").iterdir()) == ["halfcheetah_sac_hars_seed1.png"]
 
 
+def test_per_run_plots_for_decomposition_shares_without_attention(tmp_path: Path) -> None:
+    # The head's shares are the agent's reward, so a run that logs them but no attention still gets a
+    # plot; a share column that is never filled (before the head's first fit) does not count.
+    root = tmp_path / "runs"
+    shares = make_run(root, "halfcheetah", "sac", "hars", 0, lambda t: t / 1000)
+    (shares / "train.csv").write_text("step,share_r_vel,share_r_ctrl\n1000,,\n2000,0.9,0.1\n")
+    empty = make_run(root, "halfcheetah", "sac", "hars", 1, lambda t: t / 1000)
+    (empty / "train.csv").write_text("step,share_r_vel\n1000,\n2000,\n")
+    write_report([root], tmp_path / "report", bootstrap_reps=200)
+    assert sorted(p.name for p in (tmp_path / "report" / "runs").iterdir()) == ["halfcheetah_sac_hars_seed0.png"]
+
+
 def _structural_repair(run: Path, step: int) -> None:
     """An intervention as the outer loop records it: the returns' evidence, the decision, and the two
     program versions (the second adds a factor)."""

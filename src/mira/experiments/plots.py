@@ -168,6 +168,16 @@ def _float(v: Any) -> float:
         return math.nan
 
 
+def _factor_columns(train_rows: Sequence[Mapping[str, str]], prefix: str,
+                    factors: Sequence[str] | None) -> list[str]:
+    """``train.csv``'s per-factor columns with ``prefix``: those of ``factors`` when given, else every one
+    but the summary columns."""
+    cols = sorted({k for row in train_rows[:1] for k in row if k.startswith(prefix)})
+    if factors:
+        return [c for c in cols if c[len(prefix):] in set(factors)]
+    return [c for c in cols if c not in NON_FACTOR_ATTN]
+
+
 def plot_run_diagnostics(
     path: Path,
     *,
@@ -179,29 +189,32 @@ def plot_run_diagnostics(
     returns: Curve | None = None,
 ) -> bool:
     """The run's evaluation return, MCM anomaly score with threshold and triggers, attention weight per
-    factor; every SRR decision marked on each panel (an installed edit with the version it installed).
+    factor, and each factor's share of the return decomposition's r̂; every SRR decision marked on each
+    panel (an installed edit with the version it installed).
 
-    Attention columns are ``attn_<factor>`` in ``train.csv``; with ``factors`` (the names found in the
-    run's factor programs) only those are drawn, otherwise every ``attn_*`` column but summary ones
-    such as ``attn_entropy``. Either panel is left out when its data is missing; returns False (and
-    writes nothing) when both are.
+    The decomposition's shares are drawn beside the attention because they can disagree, and the head's
+    r̂ is what the agent is trained on. Columns are ``attn_<factor>`` and ``share_<factor>`` in
+    ``train.csv``; with ``factors`` (the names found in the run's factor programs) only those are drawn,
+    otherwise every such column but summary ones such as ``attn_entropy``. A panel is left out when its
+    data is missing; returns False (and writes nothing) when the MCM, attention and share panels all are.
     """
     import matplotlib
     from matplotlib.ticker import FuncFormatter
 
     header = set(diagnostics[0]) if diagnostics else set()
     score_key = next((k for k in ("score", "S", "anomaly_score") if k in header), None)
-    attn_cols = sorted({k for row in train_rows[:1] for k in row if k.startswith("attn_")})
-    if factors:
-        attn_cols = [c for c in attn_cols if c[len("attn_"):] in set(factors)]
-    else:
-        attn_cols = [c for c in attn_cols if c not in NON_FACTOR_ATTN]
+    attn_cols = _factor_columns(train_rows, "attn_", factors)
+    share_cols = _factor_columns(train_rows, "share_", factors)
+    share_cols = [c for c in share_cols if any(np.isfinite(_float(r.get(c))) for r in train_rows)]
+    # One colour per factor across both panels.
+    names = sorted({c.partition("_")[2] for c in [*attn_cols, *share_cols]})
     has_mcm = score_key is not None
     has_attn = bool(attn_cols)
-    if not has_mcm and not has_attn:
+    has_shares = bool(share_cols)
+    if not has_mcm and not has_attn and not has_shares:
         return False
     has_returns = returns is not None and len(returns.steps) > 0
-    n = int(has_mcm) + int(has_attn) + int(has_returns)
+    n = int(has_mcm) + int(has_attn) + int(has_shares) + int(has_returns)
     accepted = [(int(d["step"]), d.get("version")) for d in decisions
                 if d.get("accepted") and d.get("step") is not None]
     rejected = [int(d["step"]) for d in decisions if not d.get("accepted") and d.get("step") is not None]
@@ -240,15 +253,21 @@ def plot_run_diagnostics(
             ax.set_ylabel("anomaly score")
             ax.set_title("MCM: anomaly score S = −log p_healthy(d)")
             ax.grid(True, alpha=0.3)
-        if has_attn:
+        cmap = matplotlib.colormaps["tab10"]
+        steps = np.array([_float(r.get("step")) for r in train_rows])
+        for cols, ylabel, panel_title in (
+                (attn_cols, "attention weight", "HARS factor attention (mean weight per factor)"),
+                (share_cols, "share of r̂", "HARS return decomposition: each factor's share of r̂ (the agent's reward)")):
+            if not cols:
+                continue
             ax = axes[k]
-            steps = np.array([_float(r.get("step")) for r in train_rows])
-            cmap = matplotlib.colormaps["tab10"]
-            for i, col in enumerate(attn_cols):
+            k += 1
+            for col in cols:
+                name = col.partition("_")[2]
                 values = np.array([_float(r.get(col)) for r in train_rows])
-                ax.plot(steps, values, lw=1.5, color=cmap(i % 10), label=col[len("attn_"):])
-            ax.set_ylabel("attention weight")
-            ax.set_title("HARS factor attention (mean weight per factor)")
+                ax.plot(steps, values, lw=1.5, color=cmap(names.index(name) % 10), label=name)
+            ax.set_ylabel(ylabel)
+            ax.set_title(panel_title)
             ax.grid(True, alpha=0.3)
         for ax in axes:
             first = ax is axes[0]

@@ -570,8 +570,8 @@ def _run_diagnostic_plots(runs: Sequence[RunRecord], out: Path,
     for r in runs:
         diagnostics = read_csv(r.path / "diagnostics.csv")
         train_rows = read_csv(r.path / "train.csv")
-        has_attn = bool(train_rows) and any(k.startswith("attn_") for k in train_rows[0])
-        if not diagnostics and not has_attn:
+        per_factor = bool(train_rows) and any(k.startswith(("attn_", "share_")) for k in train_rows[0])
+        if not diagnostics and not per_factor:
             continue
         decisions = []
         for d in sorted((r.path / "interventions").glob("*/decision.json")):
