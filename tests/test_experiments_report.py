@@ -155,8 +155,14 @@ def test_discovery_and_errors(runs: Path, tmp_path: Path) -> None:
         write_report([tmp_path / "empty"], tmp_path / "r")
 
 
-def test_per_run_plots_only_for_factor_attention(tmp_path: Path) -> None:
+def test_per_run_plots_only_for_factor_attention_or_decomposition_shares(tmp_path: Path) -> None:
+    # The head's shares are the agent's reward, so a run that logs them but no attention gets a plot; a
+    # share column never filled (before the head's first fit) does not count.
     root = tmp_path / "runs"
+    shares = make_run(root, "halfcheetah", "sac", "hars", 2, lambda t: t / 1000)
+    (shares / "train.csv").write_text("step,share_r_vel,share_r_ctrl\n1000,,\n2000,0.9,0.1\n")
+    empty = make_run(root, "halfcheetah", "sac", "hars", 3, lambda t: t / 1000)
+    (empty / "train.csv").write_text("step,share_r_vel\n1000,\n2000,\n")
     summary_only = make_run(root, "halfcheetah", "sac", "hars", 0, lambda t: t / 1000)
     (summary_only / "train.csv").write_text("step,attn_entropy\n1000,0.5\n2000,0.4\n")
     with_program = make_run(root, "halfcheetah", "sac", "hars", 1, lambda t: t / 1000)
@@ -164,19 +170,8 @@ def test_per_run_plots_only_for_factor_attention(tmp_path: Path) -> None:
     (with_program / "programs").mkdir()
     (with_program / "programs" / "v000.json").write_text(json.dumps({"factors": [{"name": "r_vel"}]}))
     write_report([root], tmp_path / "report", bootstrap_reps=200)
-    assert sorted(p.name for p in (tmp_path / "report" / "runs").iterdir()) == ["halfcheetah_sac_hars_seed1.png"]
-
-
-def test_per_run_plots_for_decomposition_shares_without_attention(tmp_path: Path) -> None:
-    # The head's shares are the agent's reward, so a run that logs them but no attention still gets a
-    # plot; a share column that is never filled (before the head's first fit) does not count.
-    root = tmp_path / "runs"
-    shares = make_run(root, "halfcheetah", "sac", "hars", 0, lambda t: t / 1000)
-    (shares / "train.csv").write_text("step,share_r_vel,share_r_ctrl\n1000,,\n2000,0.9,0.1\n")
-    empty = make_run(root, "halfcheetah", "sac", "hars", 1, lambda t: t / 1000)
-    (empty / "train.csv").write_text("step,share_r_vel\n1000,\n2000,\n")
-    write_report([root], tmp_path / "report", bootstrap_reps=200)
-    assert sorted(p.name for p in (tmp_path / "report" / "runs").iterdir()) == ["halfcheetah_sac_hars_seed0.png"]
+    assert sorted(p.name for p in (tmp_path / "report" / "runs").iterdir()) == [
+        "halfcheetah_sac_hars_seed1.png", "halfcheetah_sac_hars_seed2.png"]
 
 
 def _structural_repair(run: Path, step: int) -> None:
