@@ -11,6 +11,12 @@ extends the runs already there.
     python bench/flawed.py --task halfcheetah --table-only --steps 100000
     python bench/flawed.py --task halfcheetah --table-only --steps 50000 --out bench/runs/new \
         --from bench/archive/flawed_s1,bench/archive/flawed_h      # new runs beside archived ones
+    python bench/flawed.py --programs bench/flawed_heldout --task halfcheetah --methods hars,mira --seeds 0 \
+        --steps 50000 --skip-good --out bench/runs/flawed_heldout   # the held-out set of flawed programs
+
+``bench/flawed_heldout`` is a second set, written after the offline engineer's rules were fixed, with
+factor names and forms the rules have never met: a check that the repairs come from the evidence and
+not from recognising the first set's programs.
 
 The table gives, per flaw and method, the final return (IQM over seeds with a 95% bootstrap CI, as in
 ``bench/learning.py``) and its ratio to good-program ``hars``; then the issue's targets, and each
@@ -41,9 +47,9 @@ FLAWED = ROOT / "bench" / "flawed"
 GOOD = "good"
 
 
-def flaws(task: str) -> list[dict[str, str]]:
-    """The task's entries of ``flaws.toml`` (name, kind, flaw)."""
-    entries = tomllib.loads((FLAWED / "flaws.toml").read_text(encoding="utf-8"))["flaw"]
+def flaws(task: str, programs: Path = FLAWED) -> list[dict[str, str]]:
+    """The task's entries of ``<programs>/flaws.toml`` (name, kind, flaw)."""
+    entries = tomllib.loads((programs / "flaws.toml").read_text(encoding="utf-8"))["flaw"]
     return [e for e in entries if e["task"] == task]
 
 
@@ -129,9 +135,10 @@ def interventions(run: Path) -> list[str]:
 
 
 def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[str], header: list[str],
-          reference: dict[int, Path] | None = None) -> str:
-    """The issue's table over the runs under ``roots`` (each a ``<out>/<task>``, earlier roots first)."""
-    entries = {e["name"]: e for e in flaws(task)}
+          reference: dict[int, Path] | None = None, programs: Path = FLAWED) -> str:
+    """The issue's table over the runs under ``roots`` (each a ``<out>/<task>``, earlier roots first) of
+    the programs listed in ``<programs>/flaws.toml``."""
+    entries = {e["name"]: e for e in flaws(task, programs)}
     good = iqm(list(finals(roots, GOOD, "hars", algo, budget, reference).values()))[0]
     lines = [*header, "", f"Reference: good-program `hars` {good:.0f} (the ratios below are to it).", "",
              "| program | kind | " + " | ".join(methods) + " |", "|---|---|" + "---|" * len(methods)]
@@ -187,14 +194,15 @@ def table(roots: list[Path], task: str, algo: str, budget: int, methods: list[st
 
 
 def plot(roots: list[Path], task: str, algo: str, methods: list[str],
-         reference: dict[int, Path] | None = None) -> Path | None:
+         reference: dict[int, Path] | None = None, programs: Path = FLAWED) -> Path | None:
     """One panel per program: each method's mean evaluation curve over seeds, and a tick at every step
     where a ``mira`` run installed a new program (``curves.png`` in the first root)."""
     from matplotlib.ticker import FuncFormatter
 
     from mira.experiments.plots import Curve, _figure, band, method_colour, steps_label
 
-    names = [n for n in [GOOD, *(e["name"] for e in flaws(task))] if any((r / n).is_dir() for r in roots)]
+    names = [n for n in [GOOD, *(e["name"] for e in flaws(task, programs))]
+             if any((r / n).is_dir() for r in roots)]
     if not names:
         return None
     fig, canvas = _figure(5.0 * min(len(names), 3), 3.4 * ((len(names) + 2) // 3))
@@ -236,6 +244,9 @@ def plot(roots: list[Path], task: str, algo: str, methods: list[str],
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="halfcheetah")
+    p.add_argument("--programs", type=Path, default=FLAWED,
+                   help="folder of flawed programs: flaws.toml and <task>/<name>.json (default bench/flawed; "
+                        "bench/flawed_heldout holds a second set written after the engineer's rules)")
     p.add_argument("--flaws", default="", help="comma-separated flaw names (default: every flaw of the task)")
     p.add_argument("--methods", default="hars,mira,mira-no-mcm,mira-no-srr")
     p.add_argument("--algo", default="sac")
@@ -259,11 +270,11 @@ def main() -> None:
                    help="run only the flawed programs (the good program's runs are the table's reference: "
                         "run them once, e.g. in another invocation)")
     args = p.parse_args()
-    known = [e["name"] for e in flaws(args.task)]
+    known = [e["name"] for e in flaws(args.task, args.programs)]
     names = [n for n in args.flaws.split(",") if n] or known
     unknown = sorted(set(names) - set(known))
     if unknown:
-        p.error(f"unknown flaw(s) for {args.task}: {', '.join(unknown)} (bench/flawed/flaws.toml has {known})")
+        p.error(f"unknown flaw(s) for {args.task}: {', '.join(unknown)} ({args.programs / 'flaws.toml'} has {known})")
     methods = args.methods.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
     common = ["--eval-every", str(args.eval_every), "--eval-episodes", str(args.eval_episodes),
@@ -272,7 +283,7 @@ def main() -> None:
         with ProcessPoolExecutor(args.workers) as pool:
             futures = []
             for name, method, seed in jobs(args.task, names, methods, seeds, good=not args.skip_good):
-                program = [] if name == GOOD else ["--program", str(FLAWED / args.task / f"{name}.json")]
+                program = [] if name == GOOD else ["--program", str(args.programs / args.task / f"{name}.json")]
                 futures.append(pool.submit(run_ours, method, args.algo, seed, args.steps, args.out / args.task / name,
                                            [*program, *common], args.task))
             for f in futures:
@@ -297,11 +308,11 @@ def main() -> None:
     if reference:
         header.append("Good-program `hars` seeds read from elsewhere where the folders hold none: "
                       + ", ".join(f"s{seed} {run}" for seed, run in reference.items()) + ".")
-    text = table(roots, args.task, args.algo, args.steps, methods, header, reference)
+    text = table(roots, args.task, args.algo, args.steps, methods, header, reference, args.programs)
     print(text)
     roots[0].mkdir(parents=True, exist_ok=True)
     (roots[0] / "table.md").write_text(text + "\n")
-    figure = plot(roots, args.task, args.algo, methods, reference)
+    figure = plot(roots, args.task, args.algo, methods, reference, args.programs)
     if figure is not None:
         print(f"curves: {figure}")
 
