@@ -172,6 +172,16 @@ def test_per_run_plots_only_for_factor_attention_or_decomposition_shares(tmp_pat
     write_report([root], tmp_path / "report", bootstrap_reps=200)
     assert sorted(p.name for p in (tmp_path / "report" / "runs").iterdir()) == [
         "halfcheetah_sac_hars_seed1.png", "halfcheetah_sac_hars_seed2.png"]
+    # Only the runs with a recorded intervention, or none: the per-run figures are what make a large
+    # report large.
+    (shares / "interventions" / "000-step2000").mkdir(parents=True)
+    (shares / "interventions" / "000-step2000" / "decision.json").write_text(json.dumps({"accepted": False}))
+    write_report([root], tmp_path / "some", bootstrap_reps=200, run_plots="interventions")
+    assert [p.name for p in (tmp_path / "some" / "runs").iterdir()] == ["halfcheetah_sac_hars_seed2.png"]
+    write_report([root], tmp_path / "none", bootstrap_reps=200, run_plots="none")
+    assert not (tmp_path / "none" / "runs").exists() and (tmp_path / "none" / "report.md").is_file()
+    with pytest.raises(UsageError, match="run plots must be one of"):
+        write_report([root], tmp_path / "bad", bootstrap_reps=200, run_plots="some")
 
 
 def _structural_repair(run: Path, step: int) -> None:

@@ -87,6 +87,9 @@ def add_report_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--bootstrap-reps", type=_positive_int, default=20_000, help="bootstrap replicates")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="bootstrap seed")
     p.add_argument("--no-plots", action="store_true", help="tables only")
+    p.add_argument("--run-plots", choices=("all", "interventions", "none"), default="all",
+                   help="runs that get a per-run diagnostics figure: all (default), only those with a "
+                        "recorded intervention, or none (the curve figures are still drawn)")
     p.set_defaults(func=cmd_report)
     return p
 
@@ -130,7 +133,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     from mira.experiments.report import write_report
 
     result = write_report(args.paths, args.out, include_incomplete=args.include_incomplete,
-                          bootstrap_reps=args.bootstrap_reps, seed=args.seed, plots=not args.no_plots)
+                          bootstrap_reps=args.bootstrap_reps, seed=args.seed, plots=not args.no_plots,
+                          run_plots=args.run_plots)
     used = sum(len(c.seeds) for c in result.cells)
     print(f"report: {used} runs tabulated ({len(result.runs)} found), {len(result.files)} files in "
           f"{result.out_dir} — see {result.out_dir / 'report.md'}")

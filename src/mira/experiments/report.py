@@ -350,10 +350,21 @@ def _md_table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
 # --------------------------------------------------------------------------------------- writing
 
 
+RUN_PLOTS = ("all", "interventions", "none")
+"""Which runs :func:`write_report` draws a per-run diagnostics figure for."""
+
+
 def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.PathLike[str], *,
                  include_incomplete: bool = False, bootstrap_reps: int = 20_000, seed: int = 0,
-                 plots: bool = True) -> ReportResult:
-    """Write the tables, CSVs and figures for every run found at or below ``paths`` into ``out_dir``."""
+                 plots: bool = True, run_plots: str = "all") -> ReportResult:
+    """Write the tables, CSVs and figures for every run found at or below ``paths`` into ``out_dir``.
+
+    ``run_plots`` chooses the runs that get a diagnostics figure of their own (one PNG each, the bulk of
+    a large report's size): ``all`` that log diagnostics or per-factor columns, ``interventions`` only
+    those of them with a recorded intervention, ``none``.
+    """
+    if run_plots not in RUN_PLOTS:
+        raise UsageError(f"run plots must be one of {', '.join(RUN_PLOTS)}, not {run_plots!r}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     result = ReportResult(out)
@@ -518,7 +529,9 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                            f"{fmt_return(i.return_before)} → {fmt_return(i.return_after)}"]
                           for r in used for i in stories[id(r)]])]
     if plots:
-        diag = _run_diagnostic_plots(used, out, result)
+        chosen = [r for r in used if run_plots == "all"
+                  or (run_plots == "interventions" and any((r.path / "interventions").glob("*/decision.json")))]
+        diag = _run_diagnostic_plots(chosen, out, result)
         if diag:
             md += ["## MCM diagnostics and factor attention per run\n"]
             md += [f"- {rid}: ![{rid}]({p.relative_to(out)})" for rid, p in diag]
