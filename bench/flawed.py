@@ -270,6 +270,8 @@ def main() -> None:
                    help="run only the flawed programs (the good program's runs are the table's reference: "
                         "run them once, e.g. in another invocation)")
     args = p.parse_args()
+    if not (args.programs / "flaws.toml").is_file():
+        p.error(f"--programs: no flaws.toml in {args.programs}")
     known = [e["name"] for e in flaws(args.task, args.programs)]
     names = [n for n in args.flaws.split(",") if n] or known
     unknown = sorted(set(names) - set(known))
