@@ -349,20 +349,15 @@ def _md_table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
 
 # --------------------------------------------------------------------------------------- writing
 
-
-RUN_PLOTS = ("all", "interventions", "none")
-"""Which runs :func:`write_report` draws a per-run diagnostics figure for."""
+RUN_PLOTS = ("all", "interventions", "none")  # which runs get a per-run figure: see write_report
 
 
 def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.PathLike[str], *,
                  include_incomplete: bool = False, bootstrap_reps: int = 20_000, seed: int = 0,
                  plots: bool = True, run_plots: str = "all") -> ReportResult:
-    """Write the tables, CSVs and figures for every run found at or below ``paths`` into ``out_dir``.
-
-    ``run_plots`` chooses the runs that get a diagnostics figure of their own (one PNG each, the bulk of
-    a large report's size): ``all`` that log diagnostics or per-factor columns, ``interventions`` only
-    those of them with a recorded intervention, ``none``.
-    """
+    """Write the tables, CSVs and figures for every run found at or below ``paths`` into ``out_dir``;
+    ``run_plots`` (:data:`RUN_PLOTS`) picks the runs that get a diagnostics PNG of their own (the bulk of a
+    large report): all, those with a recorded intervention, or none."""
     if run_plots not in RUN_PLOTS:
         raise UsageError(f"run plots must be one of {', '.join(RUN_PLOTS)}, not {run_plots!r}")
     out = Path(out_dir)
@@ -370,10 +365,8 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
     result = ReportResult(out)
     run_dirs = discover_runs(paths)
     if not run_dirs:
-        raise UsageError("no run directories (with config.json) found under "
-                         + ", ".join(str(p) for p in paths))
-    records = [load_run(p) for p in run_dirs]
-    result.runs = records
+        raise UsageError("no run directories (with config.json) found under " + ", ".join(str(p) for p in paths))
+    result.runs = records = [load_run(p) for p in run_dirs]
     seen: dict[tuple[str, str, str, str, int], Path] = {}
     used: list[RunRecord] = []
     for r in records:
@@ -385,16 +378,14 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
             result.notes.append(f"{r.run_id}: no evaluation yet ({r.status}); left out")
             continue
         if not r.complete and not include_incomplete:
-            result.notes.append(f"{r.run_id}: {r.status} at step {r.final_step} of {r.steps}; left out "
-                                "(incomplete)")
+            result.notes.append(f"{r.run_id}: {r.status} at step {r.final_step} of {r.steps}; left out (incomplete)")
             continue
         seen[key] = r.path
         used.append(r)
     cells, notes = compute_cells(used, reps=bootstrap_reps, seed=seed)
     result.cells = cells
-    result.notes += notes
     agg_rows, agg_notes = aggregate(cells, reps=bootstrap_reps, seed=seed)
-    result.notes += agg_notes
+    result.notes += notes + agg_notes
 
     def write(name: str, text: str) -> Path:
         path = out / name
@@ -529,9 +520,8 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                            f"{fmt_return(i.return_before)} → {fmt_return(i.return_after)}"]
                           for r in used for i in stories[id(r)]])]
     if plots:
-        chosen = [r for r in used if run_plots == "all"
-                  or (run_plots == "interventions" and any((r.path / "interventions").glob("*/decision.json")))]
-        diag = _run_diagnostic_plots(chosen, out, result)
+        diag = _run_diagnostic_plots([r for r in used if run_plots == "all" or (
+            run_plots == "interventions" and any((r.path / "interventions").glob("*/decision.json")))], out, result)
         if diag:
             md += ["## MCM diagnostics and factor attention per run\n"]
             md += [f"- {rid}: ![{rid}]({p.relative_to(out)})" for rid, p in diag]
