@@ -519,13 +519,11 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                          [[r.run_id, str(i.step), i.why, i.edit,
                            f"{fmt_return(i.return_before)} → {fmt_return(i.return_after)}"]
                           for r in used for i in stories[id(r)]])]
-    if plots:
-        diag = _run_diagnostic_plots([r for r in used if run_plots == "all" or (
-            run_plots == "interventions" and any((r.path / "interventions").glob("*/decision.json")))], out, result)
+    if plots and run_plots != "none":
+        diag = _run_diagnostic_plots(used, out, result, only_with_interventions=run_plots == "interventions")
         if diag:
-            md += ["## MCM diagnostics and factor attention per run\n"]
-            md += [f"- {rid}: ![{rid}]({p.relative_to(out)})" for rid, p in diag]
-            md.append("")
+            md += (["## MCM diagnostics and factor attention per run\n"]
+                   + [f"- {rid}: ![{rid}]({p.relative_to(out)})" for rid, p in diag] + [""])
     if result.notes:
         md += ["## Notes\n"] + [f"- {n}" for n in result.notes] + [""]
     write("report.md", "\n".join(md) + "\n")
@@ -567,19 +565,21 @@ def _run_rows(records: Sequence[RunRecord], used: Sequence[RunRecord],
     return rows
 
 
-def _run_diagnostic_plots(runs: Sequence[RunRecord], out: Path,
-                          result: ReportResult) -> list[tuple[str, Path]]:
+def _run_diagnostic_plots(runs: Sequence[RunRecord], out: Path, result: ReportResult,
+                          only_with_interventions: bool = False) -> list[tuple[str, Path]]:
     made: list[tuple[str, Path]] = []
     for r in runs:
+        decision_files = sorted((r.path / "interventions").glob("*/decision.json"))
+        if only_with_interventions and not decision_files:
+            continue
         diagnostics = read_csv(r.path / "diagnostics.csv")
         train_rows = read_csv(r.path / "train.csv")
         per_factor = bool(train_rows) and any(k.startswith(("attn_", "share_")) for k in train_rows[0])
         if not diagnostics and not per_factor:
             continue
         decisions = []
-        for d in sorted((r.path / "interventions").glob("*/decision.json")):
-            data = read_json(d)
-            if data is not None:
+        for d in decision_files:
+            if (data := read_json(d)) is not None:
                 if data.get("step") is None:  # the step the intervention was made at is in its evidence
                     data["step"] = (read_json(d.parent / "evidence.json") or {}).get("step")
                 decisions.append(data)
