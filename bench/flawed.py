@@ -8,6 +8,7 @@ extends the runs already there.
 
     python bench/flawed.py --task halfcheetah --seeds 0,1,2 --steps 100000 --workers 2
     python bench/flawed.py --task halfcheetah --flaws no_progress,abs_velocity --methods hars,mira --seeds 0
+    python bench/flawed.py --task humanoidstandup --good-only --methods mira --seeds 0   # the good program only
     python bench/flawed.py --task halfcheetah --table-only --steps 100000
     python bench/flawed.py --task halfcheetah --table-only --steps 50000 --out bench/runs/new \
         --from bench/archive/flawed_s1,bench/archive/flawed_h      # new runs beside archived ones
@@ -266,6 +267,8 @@ def main() -> None:
                    help="comma-separated run directories that stand for good-program hars where the folders "
                         "hold no such seed: hars runs of the task's own program, or mira runs that installed "
                         "no program (e.g. bench/learning.py's); anything else is refused")
+    p.add_argument("--good-only", action="store_true",
+                   help="run only the good program (with the methods among hars and mira), no flawed one")
     p.add_argument("--skip-good", action="store_true",
                    help="run only the flawed programs (the good program's runs are the table's reference: "
                         "run them once, e.g. in another invocation)")
@@ -273,7 +276,9 @@ def main() -> None:
     if not (args.programs / "flaws.toml").is_file():
         p.error(f"--programs: no flaws.toml in {args.programs}")
     known = [e["name"] for e in flaws(args.task, args.programs)]
-    names = [n for n in args.flaws.split(",") if n] or known
+    if args.good_only and (args.skip_good or args.flaws):
+        p.error("--good-only runs no flawed program: it takes neither --skip-good nor --flaws")
+    names = [] if args.good_only else [n for n in args.flaws.split(",") if n] or known
     unknown = sorted(set(names) - set(known))
     if unknown:
         p.error(f"unknown flaw(s) for {args.task}: {', '.join(unknown)} ({args.programs / 'flaws.toml'} has {known})")

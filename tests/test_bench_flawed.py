@@ -22,6 +22,9 @@ def test_jobs_give_the_good_program_only_hars_and_mira_and_can_leave_it_out(
     assert len(with_good) == 10
     without = flawed.jobs("halfcheetah", ["no_progress"], methods, [0, 1], good=False)
     assert without == [(n, m, s) for n, m, s in with_good if n != "good"]
+    # --good-only passes no flawed program: the good program's hars and mira runs alone
+    assert flawed.jobs("halfcheetah", [], methods, [0, 1]) == [
+        ("good", "hars", 0), ("good", "mira", 0), ("good", "hars", 1), ("good", "mira", 1)]
 
 
 def _run(run: Path, returns: list[float]) -> None:
