@@ -1,25 +1,53 @@
-"""A run records what decides its arithmetic (CPU model and capability, torch, GEMM backend), and a
-resume on a machine that differs in any of them says so instead of passing for a bit-exact continuation."""
+"""A run records what decides its arithmetic (CPU model and capability, torch, GEMM backend, the source
+commit), and a resume on a machine that differs in any of them says so instead of passing for a bit-exact
+continuation."""
 
 from __future__ import annotations
 
 import json
 import logging
+import subprocess
 from pathlib import Path
 
 import pytest
 
-from mira.cli import REPRODUCIBILITY_KEYS, _environment_facts, main, reproducibility_drift
+from mira.cli import REPRODUCIBILITY_KEYS, _environment_facts, main, reproducibility_drift, source_revision
 from mira.explain import explain
 
 NOW = {"cpu": "Intel(R) Xeon(R) Processor", "cpu_capability": "AVX512", "torch": "2.13.0+cpu",
-       "gemm_backend": "onednn", "python": "3.11.7"}
+       "gemm_backend": "onednn", "source": "0123abc", "python": "3.11.7"}
 
 
 def test_environment_records_every_reproducibility_key() -> None:
     facts = _environment_facts()
     for key in REPRODUCIBILITY_KEYS:
-        assert isinstance(facts[key], str) and facts[key], key
+        # A wheel has no source commit to name; every other key is always known.
+        assert (isinstance(facts[key], str) and facts[key]) or (key == "source" and facts[key] is None), key
+
+
+def test_source_revision_names_the_commit_and_uncommitted_code(tmp_path: Path) -> None:
+    assert source_revision(tmp_path) is None  # no checkout: nothing to name
+
+    def git(*argv: str) -> str:
+        return subprocess.run(["git", "-C", str(tmp_path), *argv], capture_output=True, text=True,
+                              check=True).stdout.strip()
+
+    module = tmp_path / "src" / "mira" / "m.py"
+    module.parent.mkdir(parents=True)
+    module.write_text("x = 1\n")
+    (tmp_path / "README.md").write_text("readme\n")
+    git("init", "-q")
+    git("add", "-A")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "first")
+    head = git("rev-parse", "HEAD")
+    assert source_revision(tmp_path) == head
+    (tmp_path / "README.md").write_text("edited outside src\n")
+    assert source_revision(tmp_path) == head  # only the code counts
+    module.write_text("x = 2\n")
+    first = source_revision(tmp_path)
+    assert first is not None and first.startswith(head + "+") and len(first) == len(head) + 13
+    module.write_text("x = 3\n")
+    assert source_revision(tmp_path) not in (head, first)  # another change, another digest
 
 
 def test_no_drift_on_the_same_machine() -> None:
@@ -46,6 +74,8 @@ def test_resume_on_another_cpu_warns(tmp_path: Path, fast_train_args: list[str],
     config = json.loads((run / "config.json").read_text())
     assert config["environment"]["cpu"] == _environment_facts()["cpu"]
     assert f"Machine: {config['environment']['cpu']} (" in explain(run)
+    if config["environment"]["source"]:
+        assert f"at commit {config['environment']['source'][:12]}" in explain(run)
     with caplog.at_level(logging.WARNING, logger="mira.cli"):
         assert main(["train", "--resume", str(run), "--quiet"]) == 0
     assert not [r for r in caplog.records if "different machine" in r.getMessage()]

@@ -10,11 +10,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import hashlib
 import json
 import logging
 import os
 import platform
 import shutil
+import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -71,7 +73,7 @@ def _environment_facts() -> dict[str, Any]:
     return {"mira": __version__, "python": platform.python_version(), "torch": torch.__version__,
             "gemm_backend": gemm.backend(),  # the agents' float32 products: rerun with MIRA_GEMM set to this
             "numpy": numpy.__version__, "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
-            "platform": platform.platform(), "cpu": cpu_model(),
+            "source": source_revision(), "platform": platform.platform(), "cpu": cpu_model(),
             "cpu_capability": torch.backends.cpu.get_cpu_capability(), "argv": sys.argv}
 
 
@@ -88,9 +90,32 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+SOURCE_ROOT = Path(__file__).resolve().parents[2]
+"""Where a checkout of mira has its ``.git``: two levels above this package (``src/mira``)."""
+
+
+def source_revision(root: Path = SOURCE_ROOT) -> str | None:
+    """The git commit of the source tree mira runs from (an editable install in a checkout), with
+    ``+`` and a digest of ``git diff HEAD -- src`` when its tracked code differs from that commit; None
+    when there is no checkout (a wheel) or git cannot answer. Recorded in a run's ``config.json`` so a
+    figure can be traced to the code that produced it, and a resume at other code is noticed."""
+    if not (root / ".git").exists() or not (root / "src" / "mira").is_dir():
+        return None
+
+    def git(*argv: str) -> bytes:
+        return subprocess.run(["git", "-C", str(root), *argv], capture_output=True, check=True, timeout=30).stdout
+
+    try:
+        head = git("rev-parse", "HEAD").decode().strip()
+        diff = git("diff", "HEAD", "--", "src")
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return f"{head}+{hashlib.sha256(diff).hexdigest()[:12]}" if diff else head
+
+
 # What decides a run's arithmetic besides its configuration and seed: a resumed run that differs in
 # any of them is still a valid run, but no longer the bit-for-bit continuation of the original.
-REPRODUCIBILITY_KEYS = ("cpu", "cpu_capability", "torch", "gemm_backend")
+REPRODUCIBILITY_KEYS = ("cpu", "cpu_capability", "torch", "gemm_backend", "source")
 
 
 def reproducibility_drift(recorded: dict[str, Any], now: dict[str, Any]) -> list[str]:
@@ -142,7 +167,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         drift = reproducibility_drift(saved.get("environment") or {}, _environment_facts())
         if drift:
             logging.getLogger(__name__).warning(
-                "--resume %s on a different machine or software (%s): the run continues from its checkpoint, "
+                "--resume %s on a different machine, software or source (%s): the run continues from its checkpoint, "
                 "but not bit for bit as it would have where it started", path, "; ".join(drift))
     else:
         if args.out is None:

@@ -162,6 +162,10 @@ def explain(run_dir: str | Path) -> str:
         # A seed reproduces the run exactly only on this kind of CPU and software (see README).
         lines.append(f"Machine: {env['cpu']} ({env.get('cpu_capability', '?')}), torch {env.get('torch', '?')}, "
                      f"GEMM backend {env.get('gemm_backend', '?')}.")
+    if env.get("source"):
+        commit, _, digest = str(env["source"]).partition("+")
+        lines.append(f"Code: mira {env.get('mira', '?')} at commit {commit[:12]}"
+                     + (f", with uncommitted changes to src (diff digest {digest})." if digest else "."))
     if evals:
         last = evals[-1]
         best = max(evals, key=lambda r: float(r["return_mean"]))
