@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from learning import final_return, run_ours  # type: ignore[import-not-found]
+from learning import final_return, run_ours, run_sources  # type: ignore[import-not-found]
 from mira.cli import cpu_model
 from mira.experiments.metrics import stratified_bootstrap_ci
 from mira.explain import interventions as explain_interventions
@@ -303,7 +303,8 @@ def main() -> None:
               f"steps x {args.eval_episodes} episodes; figure = IQM over seeds of the mean eval return over the "
               "final 10% of the budget [95% CI] (ratio to good-program hars, seeds finished).",
               f"Machine: {cpu_model()}, {os.cpu_count()} cores, 1 torch thread per run, {args.workers} runs in "
-              f"parallel; commit {commit}; extra train flags: {args.train_args or 'none'}.",
+              f"parallel; runs' code {run_sources(roots)}; table printed at {commit}; "
+              f"extra train flags: {args.train_args or 'none'}.",
               "Runs read from: " + ", ".join(str(d) for d in folders) + "."]
     missing = [str(r) for r in roots[1:] if not r.is_dir()]
     if missing:

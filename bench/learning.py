@@ -23,10 +23,12 @@ git, so a table can be rebuilt, and a grid filled, after the run directories are
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
 import time
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -112,6 +114,22 @@ def collect(out: Path) -> dict[str, list[tuple[int, list[tuple[int, float]], flo
     return found
 
 
+def run_sources(roots: list[Path]) -> str:
+    """The code the runs under ``roots`` ran, as each run's ``config.json`` records it (``source``):
+    every commit, shortened and marked where ``src/`` had uncommitted changes, with its number of runs;
+    runs from before that record count as unrecorded. A table read from an archive thus names the code
+    that produced it, not the tree it was printed from."""
+    counts: Counter[str] = Counter()
+    for config in sorted(p for root in roots if root.is_dir() for p in root.rglob("config.json")):
+        try:
+            source = (json.loads(config.read_text()).get("environment") or {}).get("source")
+        except (OSError, ValueError, AttributeError):
+            source = None
+        commit, _, digest = str(source or "").partition("+")
+        counts[(commit[:7] + ("+changes" if digest else "")) if commit else "unrecorded"] += 1
+    return ", ".join(f"{code} ({n} run{'s' * (n != 1)})" for code, n in sorted(counts.items())) or "no runs"
+
+
 def final_return(curve: list[tuple[int, float]], budget: int) -> float | None:
     """Mean evaluation return over the final 10% of ``budget`` (None if the run did not reach it)."""
     points = [(s, r) for s, r in curve if s <= budget]
@@ -158,7 +176,8 @@ def main() -> None:
     p.add_argument("--suffix", default="", help="appended to the method in run names, e.g. +kappa1 for a variant")
     p.add_argument("--lr", type=float, default=3e-4, help="every optimiser's learning rate (Table 1: 1e-4)")
     p.add_argument("--table-only", action="store_true", help="only rebuild the table from the run directories")
-    p.add_argument("--commit", default=os.environ.get("MIRA_COMMIT", ""), help="commit to name in the table")
+    p.add_argument("--commit", default=os.environ.get("MIRA_COMMIT", ""),
+                   help="commit the table names as the tree it was printed from (default: HEAD)")
     args = p.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     extra = ["--learning-starts", str(args.learning_starts), "--lr", str(args.lr), "--eval-every", str(args.eval_every),
@@ -182,7 +201,8 @@ def main() -> None:
         "figure = mean "
         "eval return over the final 10% of the steps reached.",
         f"Machine: {cpu_model()}, {os.cpu_count()} cores, 1 torch thread per run, "
-        f"{args.workers} runs in parallel; commit {commit}; extra train flags: {args.train_args or 'none'}.",
+        f"{args.workers} runs in parallel; runs' code {run_sources([args.out])}; table printed at {commit}; "
+        f"extra train flags: {args.train_args or 'none'}.",
     ]
     budgets = [int(b) for b in args.at.split(",") if b] or [args.steps]
     text = table(args.out, args.steps, header, budgets)

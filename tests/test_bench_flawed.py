@@ -48,6 +48,21 @@ def test_the_table_gathers_seeds_over_folders_and_the_first_folder_wins(
     assert sorted(flawed.runs([new, old], "no_progress", "mira", "sac")) == [0, 1, 2]
 
 
+def test_the_table_names_the_code_each_run_recorded(tmp_path: Path,
+                                                   load_bench: Callable[[str], ModuleType]) -> None:
+    learning = load_bench("learning")
+    head, other = "a" * 40, "b" * 40
+    sources = {"a/mira-sac-s0": head, "a/mira-sac-s1": head, "b/hars-sac-s0": f"{other}+0123456789ab",
+               "b/hars-sac-s1": None}
+    for name, source in sources.items():
+        _run(tmp_path / "runs" / name, [1.0])
+        environment = {"cpu": "x"} if source is None else {"cpu": "x", "source": source}  # None: an older run
+        (tmp_path / "runs" / name / "config.json").write_text(json.dumps({"environment": environment}))
+    assert learning.run_sources([tmp_path / "runs"]) == "aaaaaaa (2 runs), bbbbbbb+changes (1 run), unrecorded (1 run)"
+    assert learning.run_sources([tmp_path / "runs" / "a", tmp_path / "none"]) == "aaaaaaa (2 runs)"
+    assert learning.run_sources([tmp_path / "none"]) == "no runs"
+
+
 def test_the_targets_name_the_rows_not_run_instead_of_counting_them_as_misses(
         tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
     flawed = load_bench("flawed")
