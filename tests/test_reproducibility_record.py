@@ -15,14 +15,14 @@ from mira.cli import REPRODUCIBILITY_KEYS, _environment_facts, main, reproducibi
 from mira.explain import explain
 
 NOW = {"cpu": "Intel(R) Xeon(R) Processor", "cpu_capability": "AVX512", "torch": "2.13.0+cpu",
-       "gemm_backend": "onednn", "source": "0123abc", "python": "3.11.7"}
+       "gemm_backend": "onednn", "source_tree": "0123abc", "python": "3.11.7"}
 
 
 def test_environment_records_every_reproducibility_key() -> None:
     facts = _environment_facts()
     for key in REPRODUCIBILITY_KEYS:
         # A wheel has no source commit to name; every other key is always known.
-        assert (isinstance(facts[key], str) and facts[key]) or (key == "source" and facts[key] is None), key
+        assert (isinstance(facts[key], str) and facts[key]) or (key == "source_tree" and facts[key] is None), key
 
 
 def test_source_revision_names_the_commit_and_uncommitted_code(tmp_path: Path) -> None:
@@ -39,10 +39,13 @@ def test_source_revision_names_the_commit_and_uncommitted_code(tmp_path: Path) -
     git("init", "-q")
     git("add", "-A")
     git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "first")
-    head = git("rev-parse", "HEAD")
-    assert source_revision(tmp_path) == head
+    head, tree = git("rev-parse", "HEAD"), git("rev-parse", "HEAD:src")
+    assert source_revision(tmp_path) == head and source_revision(tmp_path, tree=True) == tree
     (tmp_path / "README.md").write_text("edited outside src\n")
     assert source_revision(tmp_path) == head  # only the code counts
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qam", "docs only")
+    assert source_revision(tmp_path) != head and source_revision(tmp_path, tree=True) == tree
+    head = git("rev-parse", "HEAD")
     module.write_text("x = 2\n")
     first = source_revision(tmp_path)
     assert first is not None and first.startswith(head + "+") and len(first) == len(head) + 13

@@ -73,7 +73,8 @@ def _environment_facts() -> dict[str, Any]:
     return {"mira": __version__, "python": platform.python_version(), "torch": torch.__version__,
             "gemm_backend": gemm.backend(),  # the agents' float32 products: rerun with MIRA_GEMM set to this
             "numpy": numpy.__version__, "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
-            "source": source_revision(), "platform": platform.platform(), "cpu": cpu_model(),
+            "source": source_revision(), "source_tree": source_revision(tree=True),
+            "platform": platform.platform(), "cpu": cpu_model(),
             "cpu_capability": torch.backends.cpu.get_cpu_capability(), "argv": sys.argv}
 
 
@@ -94,11 +95,12 @@ SOURCE_ROOT = Path(__file__).resolve().parents[2]
 """Where a checkout of mira has its ``.git``: two levels above this package (``src/mira``)."""
 
 
-def source_revision(root: Path = SOURCE_ROOT) -> str | None:
-    """The git commit of the source tree mira runs from (an editable install in a checkout), with
-    ``+`` and a digest of ``git diff HEAD -- src`` when its tracked code differs from that commit; None
-    when there is no checkout (a wheel) or git cannot answer. Recorded in a run's ``config.json`` so a
-    figure can be traced to the code that produced it, and a resume at other code is noticed."""
+def source_revision(root: Path = SOURCE_ROOT, tree: bool = False) -> str | None:
+    """The git commit of the source tree mira runs from (an editable install in a checkout), or with
+    ``tree`` the id of its ``src/`` tree at that commit (the same across commits that change only docs or
+    benchmarks), with ``+`` and a digest of ``git diff HEAD -- src`` when the code differs from it; None
+    when there is no checkout (a wheel) or git cannot answer. Recorded in a run's ``config.json``: the
+    commit traces a figure to the code that produced it, the tree tells a resume at other code."""
     if not (root / ".git").exists() or not (root / "src" / "mira").is_dir():
         return None
 
@@ -106,7 +108,7 @@ def source_revision(root: Path = SOURCE_ROOT) -> str | None:
         return subprocess.run(["git", "-C", str(root), *argv], capture_output=True, check=True, timeout=30).stdout
 
     try:
-        head = git("rev-parse", "HEAD").decode().strip()
+        head = git("rev-parse", "HEAD:src" if tree else "HEAD").decode().strip()
         diff = git("diff", "HEAD", "--", "src")
     except (OSError, subprocess.SubprocessError):
         return None
@@ -115,7 +117,7 @@ def source_revision(root: Path = SOURCE_ROOT) -> str | None:
 
 # What decides a run's arithmetic besides its configuration and seed: a resumed run that differs in
 # any of them is still a valid run, but no longer the bit-for-bit continuation of the original.
-REPRODUCIBILITY_KEYS = ("cpu", "cpu_capability", "torch", "gemm_backend", "source")
+REPRODUCIBILITY_KEYS = ("cpu", "cpu_capability", "torch", "gemm_backend", "source_tree")
 
 
 def reproducibility_drift(recorded: dict[str, Any], now: dict[str, Any]) -> list[str]:
