@@ -1,5 +1,5 @@
 """A run records what decides its arithmetic (CPU model and capability, torch, GEMM backend, the source
-commit), and a resume on a machine that differs in any of them says so instead of passing for a bit-exact
+tree), and a resume on a machine that differs in any of them says so instead of passing for a bit-exact
 continuation."""
 
 from __future__ import annotations
@@ -21,12 +21,12 @@ NOW = {"cpu": "Intel(R) Xeon(R) Processor", "cpu_capability": "AVX512", "torch":
 def test_environment_records_every_reproducibility_key() -> None:
     facts = _environment_facts()
     for key in REPRODUCIBILITY_KEYS:
-        # A wheel has no source commit to name; every other key is always known.
+        # A wheel has no source tree to name; every other key is always known.
         assert (isinstance(facts[key], str) and facts[key]) or (key == "source_tree" and facts[key] is None), key
 
 
 def test_source_revision_names_the_commit_and_uncommitted_code(tmp_path: Path) -> None:
-    assert source_revision(tmp_path) is None  # no checkout: nothing to name
+    assert source_revision(tmp_path) == {"source": None, "source_tree": None}  # no checkout: nothing to name
 
     def git(*argv: str) -> str:
         return subprocess.run(["git", "-C", str(tmp_path), *argv], capture_output=True, text=True,
@@ -40,17 +40,19 @@ def test_source_revision_names_the_commit_and_uncommitted_code(tmp_path: Path) -
     git("add", "-A")
     git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "first")
     head, tree = git("rev-parse", "HEAD"), git("rev-parse", "HEAD:src")
-    assert source_revision(tmp_path) == head and source_revision(tmp_path, tree=True) == tree
+    assert source_revision(tmp_path) == {"source": head, "source_tree": tree}
     (tmp_path / "README.md").write_text("edited outside src\n")
-    assert source_revision(tmp_path) == head  # only the code counts
+    assert source_revision(tmp_path) == {"source": head, "source_tree": tree}  # only the code counts
     git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qam", "docs only")
-    assert source_revision(tmp_path) != head and source_revision(tmp_path, tree=True) == tree
+    after_docs = source_revision(tmp_path)
+    assert after_docs["source"] != head and after_docs["source_tree"] == tree
     head = git("rev-parse", "HEAD")
     module.write_text("x = 2\n")
     first = source_revision(tmp_path)
-    assert first is not None and first.startswith(head + "+") and len(first) == len(head) + 13
+    digest = (first["source"] or "").removeprefix(head + "+")
+    assert len(digest) == 12 and first == {"source": f"{head}+{digest}", "source_tree": f"{tree}+{digest}"}
     module.write_text("x = 3\n")
-    assert source_revision(tmp_path) not in (head, first)  # another change, another digest
+    assert source_revision(tmp_path)["source"] not in (head, first["source"])  # another change, another digest
 
 
 def test_no_drift_on_the_same_machine() -> None:

@@ -73,8 +73,7 @@ def _environment_facts() -> dict[str, Any]:
     return {"mira": __version__, "python": platform.python_version(), "torch": torch.__version__,
             "gemm_backend": gemm.backend(),  # the agents' float32 products: rerun with MIRA_GEMM set to this
             "numpy": numpy.__version__, "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
-            "source": source_revision(), "source_tree": source_revision(tree=True),
-            "platform": platform.platform(), "cpu": cpu_model(),
+            **source_revision(), "platform": platform.platform(), "cpu": cpu_model(),
             "cpu_capability": torch.backends.cpu.get_cpu_capability(), "argv": sys.argv}
 
 
@@ -95,24 +94,27 @@ SOURCE_ROOT = Path(__file__).resolve().parents[2]
 """Where a checkout of mira has its ``.git``: two levels above this package (``src/mira``)."""
 
 
-def source_revision(root: Path = SOURCE_ROOT, tree: bool = False) -> str | None:
-    """The git commit of the source tree mira runs from (an editable install in a checkout), or with
-    ``tree`` the id of its ``src/`` tree at that commit (the same across commits that change only docs or
-    benchmarks), with ``+`` and a digest of ``git diff HEAD -- src`` when the code differs from it; None
-    when there is no checkout (a wheel) or git cannot answer. Recorded in a run's ``config.json``: the
-    commit traces a figure to the code that produced it, the tree tells a resume at other code."""
+def source_revision(root: Path = SOURCE_ROOT) -> dict[str, str | None]:
+    """``source``: the git commit of the checkout mira runs from (an editable install), and
+    ``source_tree``: the id of its ``src/`` tree at that commit (the same across commits that change only
+    docs or benchmarks), each with ``+`` and a digest of ``git diff HEAD -- src`` when the code differs
+    from it; both None when there is no checkout (a wheel) or git cannot answer. Recorded in a run's
+    ``config.json``: the commit traces a figure to the code that produced it, the tree tells a resume
+    at other code."""
+    unknown: dict[str, str | None] = {"source": None, "source_tree": None}
     if not (root / ".git").exists() or not (root / "src" / "mira").is_dir():
-        return None
+        return unknown
 
     def git(*argv: str) -> bytes:
         return subprocess.run(["git", "-C", str(root), *argv], capture_output=True, check=True, timeout=30).stdout
 
     try:
-        head = git("rev-parse", "HEAD:src" if tree else "HEAD").decode().strip()
+        head, tree = git("rev-parse", "HEAD", "HEAD:src").decode().split()
         diff = git("diff", "HEAD", "--", "src")
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return f"{head}+{hashlib.sha256(diff).hexdigest()[:12]}" if diff else head
+    except (OSError, subprocess.SubprocessError, ValueError):
+        return unknown
+    changes = f"+{hashlib.sha256(diff).hexdigest()[:12]}" if diff else ""
+    return {"source": head + changes, "source_tree": tree + changes}
 
 
 # What decides a run's arithmetic besides its configuration and seed: a resumed run that differs in
