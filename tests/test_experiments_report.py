@@ -155,6 +155,19 @@ def test_discovery_and_errors(runs: Path, tmp_path: Path) -> None:
         write_report([tmp_path / "empty"], tmp_path / "r")
 
 
+def test_a_duplicate_run_is_taken_from_the_path_named_first(tmp_path: Path) -> None:
+    # The same (algo, task, program, method, seed) under two roots, e.g. a rerun beside an archive: the
+    # caller's order decides which is tabulated, whatever the roots' names sort as.
+    make_run(tmp_path / "z_rerun", "halfcheetah", "sac", "hars", 0, lambda t: 2.0)
+    make_run(tmp_path / "a_archive", "halfcheetah", "sac", "hars", 0, lambda t: 1.0)
+    roots = [tmp_path / "z_rerun", tmp_path / "a_archive"]
+    first = write_report(roots, tmp_path / "r1", bootstrap_reps=100, plots=False)
+    assert [c.asymptotic for c in first.cells] == [[2.0]]
+    assert any("duplicate" in n and "a_archive" in n.rsplit(";", 1)[1] for n in first.notes)
+    second = write_report(roots[::-1], tmp_path / "r2", bootstrap_reps=100, plots=False)
+    assert [c.asymptotic for c in second.cells] == [[1.0]]
+
+
 def test_per_run_plots_only_for_factor_attention_or_decomposition_shares(tmp_path: Path) -> None:
     # The head's shares are the agent's reward, so a run that logs them but no attention gets a plot; a
     # share column never filled (before the head's first fit) does not count.

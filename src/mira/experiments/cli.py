@@ -78,7 +78,8 @@ def add_report_parser(subparsers: Any) -> argparse.ArgumentParser:
         description="Write report.md, table_<algo>.md/.csv, metrics.csv, aggregate.csv, runs.csv, "
                     "interventions.csv and PNG figures for every run directory found under the given paths. "
                     "Runs started from a program file (mira train --program) get a column and a curve "
-                    "panel per file.",
+                    "panel per file. Two runs of the same algorithm, task, program, method and seed: the one "
+                    "under the path named first is tabulated, the other noted and left out.",
     )
     p.add_argument("paths", nargs="+", metavar="DIR", help="run directories and/or sweep directories")
     p.add_argument("--out", required=True, help="report directory")

@@ -148,7 +148,8 @@ class ReportResult:
 
 
 def discover_runs(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
-    """Run directories (those holding ``config.json``) at or below each path, sorted, deduplicated."""
+    """Run directories (those holding ``config.json``) at or below each path, deduplicated: in the order
+    the paths are given, each path's runs sorted, so that a run named earlier wins a duplicate."""
     found: list[Path] = []
     for p in paths:
         root = Path(p)
@@ -165,7 +166,7 @@ def discover_runs(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
                 dirnames[:] = []
             else:
                 dirnames[:] = sorted(d for d in dirnames if d not in _SKIP_DIRS)
-    return sorted(dict.fromkeys(found))
+    return list(dict.fromkeys(found))
 
 
 def _task_title(cfg_task: str, card: Any) -> tuple[str, str]:
