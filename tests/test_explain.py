@@ -34,3 +34,20 @@ def test_several_triggers_are_plural(tmp_path: Path) -> None:
     text = explain(_run(tmp_path, [10000, 15000], versions=1))
     assert "2 anomaly triggers (at steps 10000, 15000)." in text
     assert "ended on program" not in text
+
+
+def test_a_structural_diagnosis_is_told_and_an_ablation_without_srr_says_it_did_not_act(tmp_path: Path) -> None:
+    run = _run(tmp_path, [], versions=1)
+    rows = ["step,trigger,returns_cv_r2,unexplained_gain,unexplained,structural_flaw",
+            "5000,0,,,,", "10000,0,0.5,0.2,x_velocity,0", "15000,0,-0.25,1.2,x_velocity,1",
+            "20000,0,-0.3,1.3,x_velocity,1"]
+    (run / "diagnostics.csv").write_text("\n".join(rows) + "\n")
+    text = explain(run)
+    assert ("called the program flawed on 2 cycles, first at step 15000 (with x_velocity its factors would "
+            "explain them with R² 0.95 instead of -0.25).") in text
+    config = json.loads((run / "config.json").read_text())
+    config["config"]["method"] = "mira-no-srr"
+    (run / "config.json").write_text(json.dumps(config))
+    assert "this method has no SRR, so the diagnosis was logged and nothing was installed." in explain(run)
+    (run / "diagnostics.csv").write_text("\n".join(r.rsplit(",", 1)[0] for r in rows) + "\n")  # an older run
+    assert "Structural check" not in explain(run)

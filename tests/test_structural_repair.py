@@ -160,8 +160,11 @@ def test_mira_repairs_a_program_without_progress(tmp_path: Path, fast_train_args
     assert any(r.get(f"w_{added}") for r in train) and not train[0].get(f"w_{added}")
     evidence = json.loads(next((run / "interventions").glob("*/evidence.json")).read_text())
     assert evidence["return_attribution"]["feature_gains"][0]["feature"] == "x_velocity"
+    flags = {int(r["step"]): r["structural_flaw"] for r in rows}  # the diagnosis is logged where it was made
+    assert flags[evidence["step"]] == "1" and "0" in flags.values()
     assert rows[-1]["version"] == "1"
     story = explain(run)  # which flaw was diagnosed, which edit was installed, the return around it
     assert "the returns show a structural flaw" in story and "with x_velocity added" in story
+    assert f"called the program flawed on 1 cycle, first at step {evidence['step']}" in story
     assert "accepted -> program v1" in story and "return:" in story
     assert "Return decomposition of program v1" in story and "r_x_velocity" in story

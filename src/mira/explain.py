@@ -195,6 +195,15 @@ def explain(run_dir: str | Path) -> str:
                          f"returns out of sample with R² {float(last['returns_cv_r2']):.2f}"
                          + (f"; the most a task feature adds is {float(last['unexplained_gain']):+.2f} "
                             f"({last['unexplained']})." if last.get("unexplained") else "."))
+        flagged = [r for r in diag if r.get("structural_flaw") == "1"]
+        if flagged:
+            first = flagged[0]
+            r2 = float(first["returns_cv_r2"])
+            lines.append(f"Structural check: the returns called the program flawed on {_count(len(flagged), 'cycle')}, "
+                         f"first at step {first['step']} (with {first['unexplained']} its factors would explain them "
+                         f"with R² {r2 + float(first['unexplained_gain']):.2f} instead of {r2:.2f})"
+                         + ("; this method has no SRR, so the diagnosis was logged and nothing was installed."
+                            if cfg.get("method") == "mira-no-srr" else "."))
     interventions = sorted((run / "interventions").glob("*/decision.json"))
     if not interventions and (run / "interventions").exists():
         lines.append("No intervention was made.")

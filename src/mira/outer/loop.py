@@ -222,7 +222,8 @@ class MiraOuterLoop:
 
     def _log(self, ctx: CycleContext, result: MCMResult, attribution: ReturnAttribution | None) -> None:
         if self._diagnostics is None:
-            fields = [*row_fields(METRIC_NAMES), "version", "returns_cv_r2", "unexplained_gain", "unexplained"]
+            fields = [*row_fields(METRIC_NAMES), "version", "returns_cv_r2", "unexplained_gain", "unexplained",
+                      "structural_flaw"]
             self._diagnostics = CsvLog(ctx.run.path / "diagnostics.csv", fields)
             self._diagnostics.rewind(ctx.step - 1)
         best = None if attribution is None else attribution.best
@@ -231,6 +232,9 @@ class MiraOuterLoop:
             "returns_cv_r2": "" if attribution is None else attribution.program_r2,
             "unexplained_gain": "" if best is None else best.gain,
             "unexplained": "" if best is None else (best.feature if best.form == "value" else f"-{best.feature}^2"),
+            # Whether the structural check calls the program flawed this cycle: the record of a diagnosis that
+            # an ablation without SRR makes but cannot act on.
+            "structural_flaw": "" if attribution is None else int(self.structural.triggered),
         })
 
     # ------------------------------------------------------------------------------------- checkpoint
