@@ -3,7 +3,8 @@ filled over several sittings) after the run directories themselves are gone.
 
 Run directories (``bench/runs/``) hold checkpoints and replay buffers and stay out of git. This copies,
 for every run under each ``OUT`` given, the files a table and an audit need — ``eval.csv`` (the curve
-every table is read from), ``config.json`` (what ran), ``status.json``, the factor programs and each
+every table is read from), ``config.json`` (what ran), ``status.json``, ``diagnostics.csv`` (the
+monitor's and the structural check's readings, one row per cycle), the factor programs and each
 intervention's decision and evidence — to ``bench/archive/<OUT's name>/``, keeping the layout, so that
 
     python bench/learning.py --table-only --out bench/archive/l19c --steps 100000 --at 50000,100000
@@ -24,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 ARCHIVE = ROOT / "bench" / "archive"
 
-KEPT = ("eval.csv", "config.json", "status.json", "decomposition.json")
+KEPT = ("eval.csv", "config.json", "status.json", "decomposition.json", "diagnostics.csv")
 """Files of a run directory that are copied as they are."""
 KEPT_GLOBS = ("programs/*.json", "interventions/*/decision.json", "interventions/*/evidence.json")
 """Smaller trees of a run directory: its program versions and each intervention's record."""

@@ -168,6 +168,21 @@ def test_a_duplicate_run_is_taken_from_the_path_named_first(tmp_path: Path) -> N
     assert [c.asymptotic for c in second.cells] == [[1.0]]
 
 
+def test_a_diagnosis_without_an_edit_is_reported(tmp_path: Path) -> None:
+    # mira-no-srr diagnoses a structural flaw and installs nothing: only diagnostics.csv records it.
+    run = make_run(tmp_path / "runs", "halfcheetah", "sac", "mira-no-srr", 0, lambda t: 1.0,
+                   program="no_progress.json")
+    rows = ["cycle,step,trigger,returns_cv_r2,unexplained_gain,unexplained,structural_flaw",
+            "0,5000,0,0.1,0.9,x_velocity,0", "1,10000,0,0.1,0.89,x_velocity,1", "2,15000,0,0.05,0.95,x_velocity,1"]
+    (run / "diagnostics.csv").write_text("\n".join(rows) + "\n")
+    make_run(tmp_path / "runs", "halfcheetah", "sac", "hars", 0, lambda t: 1.0, program="no_progress.json")
+    write_report([tmp_path / "runs"], tmp_path / "r", bootstrap_reps=100, plots=False)
+    md = (tmp_path / "r" / "report.md").read_text()
+    table = md.split("## Structural diagnoses", 1)[1]
+    assert "mira-no-srr" in table and "| 10000 | 2 | x_velocity | 0.10 → 0.99 |" in table
+    assert "/hars/" not in table and "## Interventions" not in md  # nothing was installed anywhere
+
+
 def test_per_run_plots_only_for_factor_attention_or_decomposition_shares(tmp_path: Path) -> None:
     # The head's shares are the agent's reward, so a run that logs them but no attention gets a plot; a
     # share column never filled (before the head's first fit) does not count.

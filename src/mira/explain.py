@@ -113,6 +113,31 @@ class Intervention:
         return "+".join(self.operators) + (f": {names}" if names else "")
 
 
+@dataclass(frozen=True)
+class Diagnosis:
+    """The structural check's verdict over a run (``diagnostics.csv``'s ``structural_flaw``): on how many
+    cycles it called the program flawed, and at the first, which task feature would have explained the
+    episodic returns and by how much. An ablation without SRR records it and never acts on it."""
+
+    first_step: int
+    cycles: int
+    feature: str
+    r2: float
+    r2_with: float
+
+
+def structural_diagnosis(run_dir: str | Path) -> Diagnosis | None:
+    """The run's structural diagnosis, or None if the check never called its program flawed (or the run
+    predates the column)."""
+    flagged = [r for r in read_csv(Path(run_dir) / "diagnostics.csv") if r.get("structural_flaw") == "1"]
+    if not flagged:
+        return None
+    first = flagged[0]
+    r2 = float(first["returns_cv_r2"])
+    return Diagnosis(int(first["step"]), len(flagged), first["unexplained"], r2,
+                     r2 + float(first["unexplained_gain"]))
+
+
 def interventions(run_dir: str | Path) -> list[Intervention]:
     """Every intervention recorded under ``run_dir/interventions``, in order (unreadable ones skipped)."""
     run = Path(run_dir)
@@ -195,13 +220,11 @@ def explain(run_dir: str | Path) -> str:
                          f"returns out of sample with R² {float(last['returns_cv_r2']):.2f}"
                          + (f"; the most a task feature adds is {float(last['unexplained_gain']):+.2f} "
                             f"({last['unexplained']})." if last.get("unexplained") else "."))
-        flagged = [r for r in diag if r.get("structural_flaw") == "1"]
-        if flagged:
-            first = flagged[0]
-            r2 = float(first["returns_cv_r2"])
-            lines.append(f"Structural check: the returns called the program flawed on {_count(len(flagged), 'cycle')}, "
-                         f"first at step {first['step']} (with {first['unexplained']} its factors would explain them "
-                         f"with R² {r2 + float(first['unexplained_gain']):.2f} instead of {r2:.2f})"
+        found = structural_diagnosis(run)
+        if found is not None:
+            lines.append(f"Structural check: the returns called the program flawed on {_count(found.cycles, 'cycle')}, "
+                         f"first at step {found.first_step} (with {found.feature} its factors would explain them "
+                         f"with R² {found.r2_with:.2f} instead of {found.r2:.2f})"
                          + ("; this method has no SRR, so the diagnosis was logged and nothing was installed."
                             if cfg.get("method") == "mira-no-srr" else "."))
     interventions = sorted((run / "interventions").glob("*/decision.json"))

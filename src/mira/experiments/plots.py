@@ -42,6 +42,18 @@ class Curve:
     returns: Sequence[float]
 
 
+def _compact_returns(ax: Any) -> None:
+    """Label a return axis in thousands ("140k") once its range reaches six digits, whose full labels
+    would run past the figure's left margin (HumanoidStandup's returns are of order 10^5)."""
+    from matplotlib.ticker import FuncFormatter
+
+    def label(x: float, _pos: Any = None) -> str:
+        big = max(abs(v) for v in ax.get_ylim()) >= 1e5
+        return f"{x / 1e3:g}k" if big and x != 0 else f"{x:g}"
+
+    ax.yaxis.set_major_formatter(FuncFormatter(label))
+
+
 def steps_label(x: float, _pos: Any = None) -> str:
     """Axis label for an environment-step count: 0, 500, 30k, 1.5M."""
     if x == 0:
@@ -142,6 +154,7 @@ def plot_learning_curves(
             if i % cols == 0:
                 ax.set_ylabel("episodic return")
             ax.xaxis.set_major_formatter(FuncFormatter(steps_label))
+            _compact_returns(ax)
             ax.grid(True, alpha=0.3)
         fig.suptitle(title)
         ordered = [m for m in methods if m in handles]
@@ -229,6 +242,7 @@ def plot_run_diagnostics(
             ax.plot(returns.steps, returns.returns, color="#d62728", lw=1.6, marker="o", ms=3,
                     label="evaluation return")
             ax.set_ylabel("episodic return")
+            _compact_returns(ax)
             ax.set_title("Evaluation return (deterministic policy)")
             ax.grid(True, alpha=0.3)
         if has_mcm:

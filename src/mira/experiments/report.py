@@ -3,7 +3,8 @@
 ``write_report(paths, out_dir)`` takes run directories and/or directories containing runs (a sweep's
 ``OUT``), and writes into ``out_dir``:
 
-- ``report.md`` — every table and figure with the metric definitions and notes;
+- ``report.md`` — every table and figure with the metric definitions and notes, every intervention, and
+  every structural diagnosis (including those of an ablation that cannot act on them);
 - ``table_<algo>.md`` / ``table_<algo>.csv`` — method rows; per task the asymptotic performance and
   the sample efficiency in units of 10^5 environment steps (mean ± std over seeds, "—" when no seed
   reached 50% of the Dense oracle; "(k/n)" when only k of n seeds did);
@@ -48,7 +49,7 @@ from mira.experiments import metrics as M
 from mira.experiments.grid import order_methods, task_label
 from mira.experiments.plots import Curve, plot_learning_curves, plot_run_diagnostics
 from mira.experiments.runs import read_json
-from mira.explain import interventions
+from mira.explain import interventions, structural_diagnosis
 from mira.runio.atomic import atomic_write_text
 from mira.runio.csvlog import read_csv
 
@@ -520,6 +521,17 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                          [[r.run_id, str(i.step), i.why, i.edit,
                            f"{fmt_return(i.return_before)} → {fmt_return(i.return_after)}"]
                           for r in used for i in stories[id(r)]])]
+    diagnosed = [(r, d) for r in used if (d := structural_diagnosis(r.path)) is not None]
+    if diagnosed:
+        # An ablation's diagnosis that no edit followed shows here and nowhere else in the report.
+        md += ["## Structural diagnoses\n",
+               "Runs whose returns called their program flawed (the structural check): from which step, on how "
+               "many cycles, the task feature that would have explained the episodic returns, and the "
+               "returns' out-of-sample R² without and with it. A `mira` run repairs at the first such step (see "
+               "Interventions); `mira-no-srr` logs the diagnosis and installs nothing.\n",
+               _md_table(["Run", "First flagged at", "Cycles", "Feature", "R² of returns: program → with it"],
+                         [[r.run_id, str(d.first_step), str(d.cycles), d.feature, f"{d.r2:.2f} → {d.r2_with:.2f}"]
+                          for r, d in diagnosed])]
     if plots and run_plots != "none":
         diag = _run_diagnostic_plots(used, out, result, only_with_interventions=run_plots == "interventions")
         if diag:
