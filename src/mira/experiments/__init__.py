@@ -4,6 +4,7 @@
 - :mod:`mira.experiments.sweep` — run a grid as independent ``mira train`` subprocesses;
 - :mod:`mira.experiments.metrics` — asymptotic performance, sample efficiency, IQM, bootstrap CIs;
 - :mod:`mira.experiments.report` — Table 2/3-style tables and Figure 3–5-style plots;
+- :mod:`mira.experiments.tables` — how numbers and tables are written (returns, step counts, CSV, Markdown);
 - :mod:`mira.experiments.cli` — the ``mira sweep`` and ``mira report`` subcommands.
 """
 

@@ -34,8 +34,6 @@ between two sweeps of the same grid.
 from __future__ import annotations
 
 import contextlib
-import csv
-import io
 import json
 import math
 import os
@@ -49,6 +47,7 @@ from mira.experiments import metrics as M
 from mira.experiments.grid import order_methods, task_label
 from mira.experiments.plots import Curve, plot_learning_curves, plot_run_diagnostics
 from mira.experiments.runs import read_json
+from mira.experiments.tables import SE_UNIT, csv_text, fmt_return, fmt_steps_1e5, md_table
 from mira.explain import interventions, structural_diagnosis
 from mira.runio.atomic import atomic_write_text
 from mira.runio.csvlog import read_csv
@@ -63,7 +62,6 @@ ALGO_ORDER = ("ddpg", "sac")
 ALGO_TABLE = {"ddpg": "Table 2", "sac": "Table 3"}
 ABLATION = ("mira", "mira-no-mcm", "mira-no-srr")
 ORACLE = "dense"
-SE_UNIT = 1e5
 _SKIP_DIRS = {"tb", "checkpoints", "programs", "interventions", "llm", "_sweep", "__pycache__"}
 
 
@@ -294,28 +292,6 @@ def aggregate(cells: Sequence[CellStats], *, reps: int = 20_000,
 # ------------------------------------------------------------------------------------ formatting
 
 
-def _return_decimals(ref: float) -> int:
-    ax = abs(ref)
-    return 0 if ax >= 1000 else 1 if ax >= 10 else 2
-
-
-def fmt_return(x: float | None, ref: float | None = None) -> str:
-    """A return for a table: 10,733 / 612.4 / −1.32, with the precision of ``ref`` (default ``x``)."""
-    if x is None or not math.isfinite(x):
-        return "—"
-    decimals = _return_decimals(x if ref is None or not math.isfinite(ref) else ref)
-    return f"{x:,.{decimals}f}".replace("-", "−")
-
-
-def fmt_steps_1e5(x: float | None, ref: float | None = None) -> str:
-    """Steps in units of 10^5 with two decimals, or two significant digits below 0.1 (of ``ref``)."""
-    if x is None or not math.isfinite(x):
-        return "—"
-    r = abs((x if ref is None else ref) / SE_UNIT)
-    decimals = 2 if r >= 0.1 or r == 0 else max(2, 1 - math.floor(math.log10(r)))
-    return f"{x / SE_UNIT:.{decimals}f}"
-
-
 def _asym_cell(c: CellStats) -> str:
     if len(c.seeds) == 1:  # one seed has no spread: "± 0" would claim one
         return fmt_return(c.asym_mean)
@@ -332,21 +308,6 @@ def _se_cell(c: CellStats) -> str:
         return fmt_steps_1e5(c.se_mean)
     text = f"{fmt_steps_1e5(c.se_mean)} ± {fmt_steps_1e5(c.se_std, c.se_mean)}"
     return text if c.reached == n else f"{text} ({c.reached}/{n})"
-
-
-def _csv_text(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    for row in rows:
-        w.writerow(["" if v is None else (repr(float(v)) if isinstance(v, float) else v) for v in row])
-    return buf.getvalue()
-
-
-def _md_table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------------------- writing
@@ -395,11 +356,11 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
         result.files.append(path)
         return path
 
-    write("runs.csv", _csv_text(
+    write("runs.csv", csv_text(
         ["algo", "task", "method", "seed", "steps", "status", "final_step", "used", "asymptotic",
          "sample_eff_steps", "wall_s", "program"],
         _run_rows(records, used, cells)))
-    write("metrics.csv", _csv_text(
+    write("metrics.csv", csv_text(
         ["algo", "task", "method", "seeds", "asymptotic_mean", "asymptotic_std", "asymptotic_iqm",
          "asymptotic_iqm_ci_low", "asymptotic_iqm_ci_high", "oracle_asymptotic", "threshold",
          "sample_eff_steps_mean", "sample_eff_steps_std", "reached", "wall_s_mean", "program"],
@@ -407,12 +368,12 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
           c.oracle, c.threshold, c.se_mean, c.se_std, c.reached, c.wall_mean, c.program]
          for c in _sorted_cells(cells))))
     agg_cols = ["algo", "method", "tasks", "runs", "normalized_iqm", "ci_low", "ci_high"]
-    write("aggregate.csv", _csv_text(agg_cols, ([r[k] for k in agg_cols] for r in agg_rows)))
+    write("aggregate.csv", csv_text(agg_cols, ([r[k] for k in agg_cols] for r in agg_rows)))
 
     stories = {id(r): interventions(r.path) for r in used}
     rows_iv = [[r.algo, r.task, r.program, r.method, r.seed, i.step, i.why, i.edit, int(i.accepted),
                 i.return_before, i.return_after] for r in used for i in stories[id(r)]]
-    write("interventions.csv", _csv_text(["algo", "task", "program", "method", "seed", "step", "why", "edit",
+    write("interventions.csv", csv_text(["algo", "task", "program", "method", "seed", "step", "why", "edit",
                                           "accepted", "return_before", "return_after"], rows_iv))
     task_titles = {r.task: r.task_title for r in used}
     titles = {r.panel: r.panel_title for r in used}
@@ -453,13 +414,13 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
             spread = "mean ± std over " + (f"{n_seeds[0]} seeds" if len(n_seeds) == 1
                                           else f"{n_seeds[0]}–{n_seeds[-1]} seeds")
         caption = f"{algo.upper()} — layout of the paper's {ALGO_TABLE.get(algo, 'Table 2')}; {spread}."
-        table = _md_table(header, rows_md)
+        table = md_table(header, rows_md)
         write(f"table_{algo}.md", f"{caption}\n\n{table}")
         csv_header = ["method"]
         for t in tasks:
             csv_header += [f"{t}:asymptotic_mean", f"{t}:asymptotic_std", f"{t}:sample_eff_1e5_mean",
                            f"{t}:sample_eff_1e5_std", f"{t}:reached", f"{t}:seeds"]
-        write(f"table_{algo}.csv", _csv_text(csv_header, rows_csv))
+        write(f"table_{algo}.csv", csv_text(csv_header, rows_csv))
         md += [f"## {algo.upper()} ({ALGO_TABLE.get(algo, 'Table 2')} layout)\n", caption + "\n", table]
         iqm_rows = []
         for m in methods:
@@ -470,7 +431,7 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                            f"{fmt_return(c.iqm_high, c.iqm)}]" if c else "")
             iqm_rows.append(row)
         md += ["IQM of asymptotic performance over seeds [95% bootstrap CI]:\n",
-               _md_table(["Method", *(titles.get(t, t) for t in tasks)], iqm_rows)]
+               md_table(["Method", *(titles.get(t, t) for t in tasks)], iqm_rows)]
         program_of = {c.panel: (c.task, c.program) for c in acells}
         for task in sorted({c.task for c in acells if c.program}):
             # The same IQMs turned round: one row per initial program, the layout of a flawed-program study.
@@ -478,7 +439,7 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
             cols = [m for m in methods if any((t, m) in by for t in own)]
             md += [f"{algo.upper()} on {task_titles.get(task, task)} by initial program "
                    "(IQM [95% CI] over seeds, seeds):\n",
-                   _md_table(["Initial program", *(METHOD_TITLES.get(m, m) for m in cols)],
+                   md_table(["Initial program", *(METHOD_TITLES.get(m, m) for m in cols)],
                              [[program_of[t][1] or "the task's own", *(
                                  f"{fmt_return(c.iqm)} [{fmt_return(c.iqm_low, c.iqm)}, "
                                  f"{fmt_return(c.iqm_high, c.iqm)}] ({len(c.seeds)})" if c else ""
@@ -487,7 +448,7 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
         if arows:
             md += ["Oracle-normalised asymptotic performance, IQM over all tasks and seeds "
                    "[95% stratified-bootstrap CI]:\n",
-                   _md_table(["Method", "IQM", "95% CI", "runs"],
+                   md_table(["Method", "IQM", "95% CI", "runs"],
                              [[METHOD_TITLES.get(r["method"], r["method"]), f"{r['normalized_iqm']:.3f}",
                                f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}]", str(r["runs"])] for r in arows])]
         if plots:
@@ -517,7 +478,7 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                "Every intervention of the tabulated runs: why it happened, the edit installed (`+` a factor "
                "added, `~` one rewritten; `-` nothing installed), and the mean evaluation return over the "
                "three evaluation intervals before and after it.\n",
-               _md_table(["Run", "Step", "Why", "Edit", "Return before → after"],
+               md_table(["Run", "Step", "Why", "Edit", "Return before → after"],
                          [[r.run_id, str(i.step), i.why, i.edit,
                            f"{fmt_return(i.return_before)} → {fmt_return(i.return_after)}"]
                           for r in used for i in stories[id(r)]])]
@@ -529,7 +490,7 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
                "many cycles, the task feature that would have explained the episodic returns, and the "
                "returns' out-of-sample R² without and with it. A `mira` run repairs at the first such step (see "
                "Interventions); `mira-no-srr` logs the diagnosis and installs nothing.\n",
-               _md_table(["Run", "First flagged at", "Cycles", "Feature", "R² of returns: program → with it"],
+               md_table(["Run", "First flagged at", "Cycles", "Feature", "R² of returns: program → with it"],
                          [[r.run_id, str(d.first_step), str(d.cycles), d.feature, f"{d.r2:.2f} → {d.r2_with:.2f}"]
                           for r, d in diagnosed])]
     if plots and run_plots != "none":
