@@ -126,10 +126,12 @@ class Diagnosis:
     r2_with: float
 
 
-def structural_diagnosis(run_dir: str | Path) -> Diagnosis | None:
+def structural_diagnosis(run_dir: str | Path, rows: list[dict[str, str]] | None = None) -> Diagnosis | None:
     """The run's structural diagnosis, or None if the check never called its program flawed (or the run
-    predates the column)."""
-    flagged = [r for r in read_csv(Path(run_dir) / "diagnostics.csv") if r.get("structural_flaw") == "1"]
+    predates the column); ``rows`` are its ``diagnostics.csv`` rows if the caller has read them already."""
+    if rows is None:
+        rows = read_csv(Path(run_dir) / "diagnostics.csv")
+    flagged = [r for r in rows if r.get("structural_flaw") == "1"]
     if not flagged:
         return None
     first = flagged[0]
@@ -220,7 +222,7 @@ def explain(run_dir: str | Path) -> str:
                          f"returns out of sample with R² {float(last['returns_cv_r2']):.2f}"
                          + (f"; the most a task feature adds is {float(last['unexplained_gain']):+.2f} "
                             f"({last['unexplained']})." if last.get("unexplained") else "."))
-        found = structural_diagnosis(run)
+        found = structural_diagnosis(run, diag)
         if found is not None:
             lines.append(f"Structural check: the returns called the program flawed on {_count(found.cycles, 'cycle')}, "
                          f"first at step {found.first_step} (with {found.feature} its factors would explain them "
