@@ -66,7 +66,7 @@ def test_sandbox_failures_exit_one(tmp_path: Path) -> None:
             {
                 "name": "r_log",
                 "type": "PHI",
-                "code": "def r_log(s):\n    return np.log(s.pitch)\n",
+                "code": "def r_log(s):\n    return np.arccosh(s.pitch + 1.0)\n",
                 "doc": "d",
                 "units": "1",
                 "range_hint": "[-5, 5]",

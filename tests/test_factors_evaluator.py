@@ -51,7 +51,7 @@ def test_bad_values_become_counted_zeros(cheetah: tuple[object, np.ndarray, np.n
     card, obs, _ = cheetah
     program = program_of(
         ("ok", "PHI", "def ok(s):\n    return s.x_velocity\n"),
-        ("nan", "PHI", "def nan(s):\n    return np.log(s.x_velocity)\n"),  # NaN for negative velocities
+        ("nan", "PHI", "def nan(s):\n    return np.arccosh(s.x_velocity + 1.0)\n"),  # NaN for negative velocities
         ("inf", "PHI", "def inf(s):\n    return s.x_velocity / 0.0\n"),
         ("shape", "PHI", "def shape(s):\n    return s.obs\n"),
         ("scalar", "PHI", "def scalar(s):\n    return 1.0\n"),

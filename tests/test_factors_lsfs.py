@@ -6,13 +6,8 @@ import json
 
 import pytest
 
-from mira.factors import (
-    ProgramParseError,
-    build_lsfs_messages,
-    check_program,
-    example_program,
-    parse_program_reply,
-)
+from mira.engineer.lsfs_prompt import build_lsfs_messages, parse_program_reply
+from mira.factors import ProgramParseError, check_program, example_program
 from mira.tasks import load_task
 
 CARD = load_task("halfcheetah", check_env=False)

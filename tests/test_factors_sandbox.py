@@ -56,7 +56,7 @@ def test_realizability_failures_are_reported_with_figures() -> None:
     program = program_of(
         "halfcheetah",
         ok="def ok(s):\n    return s.x_velocity\n",
-        nan="def nan(s):\n    return np.log(s.x_velocity)\n",
+        nan="def nan(s):\n    return np.arccosh(s.x_velocity + 1.0)\n",  # NaN below 0 (no static rule sees it)
         inf="def inf(s):\n    return s.obs[:, 8] * 1e308 * 10.0\n",
         shape="def shape(s):\n    return s.obs\n",
         scalar="def scalar(s):\n    return 0.5\n",
@@ -180,10 +180,13 @@ def test_a_division_by_a_margin_that_reaches_zero_where_the_task_ends_is_refused
     (violation,) = [v for v in report.factors["r_x"].reasons if v.rule == "singular"]
     assert violation.line == 3
     assert "division by s.height_margin, which is 0 where height_margin = 0" in violation.message
-    # Away from zero the same shape is fine, and a log of a velocity (negative on real states) is not.
-    assert sandbox_check(_hopper_program("def r_x(s):\n    return s.x_velocity / (s.height_margin + 2.0)\n"),
-                         card).ok
-    logged = sandbox_check(_hopper_program("def r_x(s):\n    return np.log(1.0 + 0.1 * s.x_velocity)\n"), card)
-    assert logged.ok  # not an affine argument that reaches 0 on these states: left to the numeric checks
+    # Shifted away from zero on these states, the same shape is still refused: nothing in the code keeps the
+    # argument away from 0 where a trained policy goes (rule unguarded); with its guard written, it passes.
+    shifted = sandbox_check(_hopper_program("def r_x(s):\n    return s.x_velocity / (s.height_margin + 2.0)\n"),
+                            card)
+    assert not shifted.ok and any(v.rule == "unguarded" for v in shifted.violations)
+    guarded = "def r_x(s):\n    return s.x_velocity / (np.maximum(s.height_margin, 0.0) + 2.0)\n"
+    assert sandbox_check(_hopper_program(guarded), card).ok
+    assert sandbox_check(_hopper_program("def r_x(s):\n    return np.log(1.0 + np.abs(s.x_velocity))\n"), card).ok
     logged = sandbox_check(_hopper_program("def r_x(s):\n    return np.log(s.x_velocity + 1.0)\n"), card)
-    assert any(v.rule == "singular" and "np.log of" in v.message for v in logged.factors["r_x"].reasons)
+    assert any(v.rule in ("singular", "unguarded") and "np.log of" in v.message for v in logged.violations)

@@ -147,7 +147,7 @@ def test_synthesised_programs_of_built_in_cards_draw_no_checker_warnings(task: s
     from mira.tasks.envs import action_dim
 
     card = load_task(task)
-    program = synthesize_program(card, OfflineEngineer(), action_dim(card))
+    program = synthesize_program(card, OfflineEngineer(), action_dim(card)).program
     assert not check_program(program, card).warnings
     report = sandbox_check(program, card)
     assert report.ok and not any(v.warnings for v in report.factors.values()), report.lines()

@@ -76,7 +76,7 @@ def test_diagnosis_only_on_humanoidstandup_logs_every_cycle_and_never_edits(tmp_
     rows = read_csv(run / "diagnostics.csv")
     assert len(rows) == 2 and all(r["version"] == "0" for r in rows)
     assert not (run / "interventions").exists() or not any((run / "interventions").iterdir())
-    assert sorted(p.name for p in (run / "programs").glob("*.json")) == ["v000.json"]
+    assert sorted(p.name for p in (run / "programs").glob("*.json")) == ["origin.json", "v000.json"]
 
 
 @pytest.mark.slow

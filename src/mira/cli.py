@@ -60,6 +60,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("explain", help="the story of a run: versions, interventions, evidence, what changed")
     e.add_argument("run_dir")
+
+    lm = sub.add_parser("llm", help="a run's exchanges with its reward engineer")
+    lmsub = lm.add_subparsers(dest="llm_command", required=True, parser_class=Parser)
+    lx = lmsub.add_parser("export", help="write a run's LLM replies as a replayable script or response cache",
+                          description="Write the replies of RUN_DIR/llm/exchanges.jsonl as a script for "
+                                      "--llm script:FILE (default) or as a response cache for --llm-cache DIR "
+                                      "--llm-offline-only. Exchanges without a reply are skipped and counted.")
+    lx.add_argument("run_dir", metavar="RUN_DIR")
+    lx.add_argument("--out", default=None, metavar="FILE|DIR",
+                    help="script file (default RUN_DIR/llm/script.jsonl) or cache directory (required)")
+    lx.add_argument("--format", choices=("script", "cache"), default="script", help="default: script")
     return parser
 
 
@@ -247,7 +258,14 @@ def cmd_factors(args: argparse.Namespace) -> int:
     card = load_task(args.task)
     llm = LLMConfig(backend=args.llm, base_url=args.base_url, api_key_env=args.api_key_env,
                     cache_dir=args.llm_cache, offline_only=args.llm_offline_only)
-    program = synthesize_program(card, backend_from_config(llm, _default_cache(), None), action_dim(card))
+    made = synthesize_program(card, backend_from_config(llm, _default_cache(), None), action_dim(card),
+                              followups=llm.followups)
+    program = made.program
+    if made.retries:
+        print(f"mira: the program was admitted on attempt {len(made.attempts)} (the earlier replies were sent back "
+              "with their errors)", file=sys.stderr)
+    for warning in made.warnings:
+        print(warning, file=sys.stderr)
     if args.out:
         save_program(program, args.out)
         print(f"mira: wrote {args.out} ({len(program.factors)} factors)", file=sys.stderr)
@@ -263,6 +281,13 @@ def cmd_explain(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_llm(args: argparse.Namespace) -> int:
+    from mira.llm.export import export_run
+
+    print(export_run(args.run_dir, args.out, args.format).summary())
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -271,7 +296,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if getattr(args, "command", None) == "train" or getattr(args, "quiet", False):
         logging.getLogger("mira").setLevel(logging.INFO)
-    handlers = {"train": cmd_train, "factors": cmd_factors, "explain": cmd_explain}
+    handlers = {"train": cmd_train, "factors": cmd_factors, "explain": cmd_explain, "llm": cmd_llm}
     try:
         handler = handlers.get(args.command) or args.func
         result: int = handler(args)

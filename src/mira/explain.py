@@ -171,6 +171,27 @@ def interventions(run_dir: str | Path) -> list[Intervention]:
     return out
 
 
+def _program_origin(run: Path, cfg: dict[str, Any]) -> str:
+    """Who wrote program v0, from ``programs/origin.json`` (or, for older runs, the configuration)."""
+    offline = "the offline rule-based reward engineer (not an LLM)"
+    origin = _load(run / "programs" / "origin.json")
+    if not origin:
+        if cfg.get("program"):
+            return f"was read from {cfg['program']}"
+        engineer = cfg.get("llm", {}).get("backend", "offline")
+        return f"was written by {offline if engineer == 'offline' else engineer}"
+    attempts = origin.get("attempts") or []
+    if origin.get("written_by") == "file":
+        return f"was read from {origin.get('file')}"
+    if origin.get("fallback_from"):
+        return (f"was written by {offline}, because every reply of {origin['fallback_from']} was refused "
+                f"({_count(len(attempts), 'attempt')}; {origin.get('reason')})")
+    who = offline if origin.get("written_by") == "offline" else origin.get("written_by")
+    turns = ("" if len(attempts) <= 1 else
+             f", admitted on attempt {len(attempts)} (the earlier replies were sent back with their errors)")
+    return f"was written by {who}{turns}"
+
+
 def explain(run_dir: str | Path) -> str:
     run = Path(run_dir)
     cfg_file = _load(run / "config.json")
@@ -202,9 +223,7 @@ def explain(run_dir: str | Path) -> str:
     if programs:
         v0 = _load(programs[0]) or {}
         names = ", ".join(f"{f['name']} ({f['type']})" for f in v0.get("factors", []))
-        engineer = cfg.get("llm", {}).get("backend", "offline")
-        who = "the offline rule-based reward engineer (not an LLM)" if engineer == "offline" else engineer
-        lines.append(f"Program v0 was written by {who}: {names}.")
+        lines.append(f"Program v0 {_program_origin(run, cfg)}: {names}.")
         if len(programs) > 1:
             versions = ", ".join(p.stem.lstrip("v").lstrip("0") or "0" for p in programs)
             lines.append(f"The run ended on program v{int(programs[-1].stem[1:])} (versions: {versions}).")

@@ -2,19 +2,25 @@
 
 One entry point for every caller (``mira factors synth``, HARS/MIRA, LaRe): build the structured
 prompt from the task card, ask the configured backend (an LLM, a script, or the offline rule-based
-engineer — the caller never knows which), parse the reply strictly, and check the program before
-anyone uses it. The backend is built from an :class:`~mira.config.LLMConfig` with the response cache
-on by default and every exchange audited in the run directory.
+engineer — the caller never knows which), read the reply as models write it, and pass the program
+through the same gates as an edit (static checks, then the sandbox on real states) before anyone uses
+it; a refused reply goes back to the model with its errors (:mod:`mira.engineer.dialogue`). The
+backend is built from an :class:`~mira.config.LLMConfig` with the response cache on by default and
+every exchange audited in the run directory.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
+from mira.engineer.admission import Admission, admit_program, with_code
 from mira.engineer.backends import make_backend
+from mira.engineer.dialogue import Attempt, Verdict, converse
 from mira.engineer.lsfs_prompt import build_lsfs_messages, parse_program_reply
 from mira.errors import MiraError
 from mira.factors.checker import check_program
@@ -26,8 +32,16 @@ from mira.tasks.card import TaskCard
 Purpose = Literal["lsfs", "srr", "lare"]
 
 
+Admitted = tuple[FactorProgram, list[str]]
+"""An admitted program with the warnings of its checks."""
+
+
 class SynthesisError(MiraError):
-    """The backend's program could not be parsed or is not admissible."""
+    """The backend's program could not be parsed or is not admissible, after every follow-up turn."""
+
+    def __init__(self, message: str, *, attempts: list[Attempt] | None = None) -> None:
+        super().__init__(message)
+        self.attempts = attempts or []
 
 
 def backend_from_config(cfg: LLMConfig, default_cache: Path | None, audit_dir: Path | None) -> LLMBackend:
@@ -70,21 +84,52 @@ def lsfs_request(card: TaskCard, action_dim: int, purpose: Purpose = "lsfs") -> 
     return LLMRequest(messages=messages, purpose=purpose, temperature=0.0, context=context)
 
 
+@dataclass
+class Synthesis:
+    """An admitted initial program, how many turns it took, and what a person should know about it."""
+
+    program: FactorProgram
+    attempts: list[Attempt]
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def retries(self) -> int:
+        return len(self.attempts) - 1
+
+
+def judge_program(card: TaskCard, sandbox: bool = True) -> Callable[[str], Verdict[Admitted]]:
+    """Parse a reply as a program and pass it through the static checks and (``sandbox``) the sandbox."""
+
+    def judge(content: str) -> Verdict[Admitted]:
+        try:
+            program = parse_program_reply(content, card)
+        except ProgramParseError as exc:
+            return Verdict(None, [str(exc)], {"ok": False, "error": str(exc)})
+        if sandbox:
+            gates = admit_program(program, card)
+        else:
+            static = check_program(program, card)
+            gates = Admission(errors=[with_code(program, v) for v in static.errors],
+                              warnings=[str(v) for v in static.warnings])
+        record = {"ok": gates.ok, "violations": gates.errors, "warnings": gates.warnings}
+        if not gates.ok:
+            return Verdict(None, gates.errors, record)
+        return Verdict((program, gates.warnings), [], record)
+
+    return judge
+
+
 def synthesize_program(
-    card: TaskCard, backend: LLMBackend, action_dim: int, purpose: Purpose = "lsfs"
-) -> FactorProgram:
-    """Ask ``backend`` for the task's initial program; raise :class:`SynthesisError` unless admissible."""
-    reply = backend.complete(lsfs_request(card, action_dim, purpose))
-    record = getattr(backend, "record_parse_result", None)
-    try:
-        program = parse_program_reply(reply.content, card)
-    except ProgramParseError as exc:
-        if record is not None:
-            record(reply, {"ok": False, "error": str(exc)})
-        raise SynthesisError(f"the {purpose.upper()} reply is not a usable program: {exc}") from exc
-    report = check_program(program, card)
-    if record is not None:
-        record(reply, {"ok": report.ok, "violations": report.lines()})
-    if not report.ok:
-        raise SynthesisError(f"the {purpose.upper()} program is not admissible: " + "; ".join(report.lines()))
-    return program
+    card: TaskCard, backend: LLMBackend, action_dim: int, purpose: Purpose = "lsfs", *, followups: int = 0,
+    sandbox: bool = True,
+) -> Synthesis:
+    """Ask ``backend`` for the task's initial program, sending a refused reply back with its errors up to
+    ``followups`` times; raise :class:`SynthesisError` (with every attempt) when none is admissible."""
+    dialogue = converse(backend, lsfs_request(card, action_dim, purpose), judge_program(card, sandbox), followups)
+    if dialogue.value is None:
+        errors = dialogue.attempts[-1].errors if dialogue.attempts else []
+        turns = len(dialogue.attempts)
+        raise SynthesisError(f"the {purpose.upper()} reply was refused ({turns} attempt{'s' if turns > 1 else ''}); "
+                             "the last for: " + "; ".join(errors), attempts=dialogue.attempts)
+    program, warnings = dialogue.value
+    return Synthesis(program, dialogue.attempts, warnings)

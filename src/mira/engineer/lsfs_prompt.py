@@ -18,12 +18,12 @@ static checker and the sandbox.
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Mapping
 from importlib import resources
 from string import Template
 from typing import TYPE_CHECKING, Any
 
+from mira.engineer.replyjson import find_json_object
 from mira.factors.program import FACTOR_FIELDS, Factor, FactorProgram, ProgramParseError
 from mira.factors.whitelist import allowed_syntax_summary
 
@@ -31,12 +31,26 @@ if TYPE_CHECKING:
     from mira.tasks.card import TaskCard
 
 MAX_REPLY_CHARS = 200_000
-_FENCE = re.compile(r"```[ \t]*(?:json|JSON|javascript)?[ \t]*\r?\n(.*?)```", re.DOTALL)
-_EXAMPLE_FACTOR = (
-    '{"name": "r_upright", "type": "PHI", '
-    '"code": "def r_upright(s):\\n    return -1.0 * np.tanh(s.pitch ** 2)\\n", '
-    '"doc": "penalise tilting the torso", "units": "1", "range_hint": "[-1, 0]", "polarity": "penalty"}'
+FACTOR_USAGE = (
+    "The environment pays its reward only once, at the end of an episode (the sum of what it would have "
+    "paid per step). The learning system fits a per-step reward r(s, a, s') = sum_i w_i * f_i + b to the "
+    "episodes' returns: PHI factors read at the next state s', AUX factors at (s, a), the weights refitted "
+    "by regression after every episode, and the agent learns from that r. So each factor's sign and scale "
+    "are learned from the returns: what matters is which quantities the program reads, each in a form "
+    "(value, square, gated, saturated) whose weighted sum can express what the task pays for. A potential "
+    "over the PHI factors is also learned and watched by a monitor (and, if configured, added as "
+    "potential-based shaping)."
 )
+"""How MIRA uses a program, said in both prompts so a model writes factors for the use they get."""
+
+
+def example_factor(card: TaskCard) -> str:
+    """The format of one factor, over this task's first feature: an example that names fields the task
+    does not have invites the model to read them. It shows the form only, not a choice of factor."""
+    feature = card.features[0]
+    name = f"f_{feature.name}"
+    return json.dumps({"name": name, "type": "PHI", "code": f"def {name}(s):\n    return np.tanh(s.{feature.name})\n",
+                       "doc": feature.doc or feature.name, "units": feature.units or "1", "range_hint": "[-1, 1]"})
 
 
 def _template(name: str) -> Template:
@@ -62,43 +76,11 @@ def build_lsfs_messages(
         min_factors=str(min_factors),
         max_factors=str(max_factors),
         syntax=allowed_syntax_summary(),
-        example_factor=_EXAMPLE_FACTOR,
+        example_factor=example_factor(card),
+        usage=FACTOR_USAGE,
     )
     system = _template("lsfs_system.txt").substitute()
     return [{"role": "system", "content": system.strip()}, {"role": "user", "content": user.strip()}]
-
-
-def _json_candidates(text: str) -> list[Any]:
-    """Every JSON value we can find: the whole text, fenced blocks, then objects embedded in prose."""
-    found: list[Any] = []
-    errors: list[str] = []
-    chunks = [text.strip(), *(m.group(1).strip() for m in _FENCE.finditer(text))]
-    for chunk in chunks:
-        try:
-            found.append(json.loads(chunk))
-        except json.JSONDecodeError as exc:
-            errors.append(f"{exc.msg} at line {exc.lineno} column {exc.colno}")
-        except RecursionError:
-            errors.append("nested too deeply")
-    if not any(isinstance(v, dict) and "factors" in v for v in found):
-        # Top-level objects embedded in prose; never look inside an object that decoded.
-        decoder = json.JSONDecoder()
-        pos, tries = text.find("{"), 0
-        while pos >= 0 and tries < 200:
-            tries += 1
-            try:
-                value, end = decoder.raw_decode(text, pos)
-            except (json.JSONDecodeError, RecursionError):
-                pos = text.find("{", pos + 1)
-                continue
-            if isinstance(value, dict) and "factors" in value:
-                found.append(value)
-                break
-            pos = text.find("{", end)
-    looks_like_json = text.lstrip().startswith(("{", "[")) or _FENCE.search(text) is not None
-    if not found and errors and looks_like_json:
-        raise ProgramParseError(f"the reply is not valid JSON ({errors[0]})")
-    return found
 
 
 def _normalise_factor(raw: Any, index: int) -> dict[str, Any]:
@@ -129,10 +111,7 @@ def parse_program_reply(
     task = task_name or (card.name if card is not None else None)
     if not task:
         raise ProgramParseError("no task name given for the program")
-    candidates = [v for v in _json_candidates(text) if isinstance(v, dict) and "factors" in v]
-    if not candidates:
-        raise ProgramParseError("the reply has no JSON object with a 'factors' list")
-    obj = candidates[0]
+    obj = find_json_object(text, "factors")
     raw_factors = obj["factors"]
     if not isinstance(raw_factors, list) or not raw_factors:
         raise ProgramParseError("'factors' must be a non-empty list of factor objects")

@@ -10,10 +10,10 @@ schema or the factor model is rejected here, before any check runs.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from typing import Any
 
+from mira.engineer.replyjson import find_json_object
 from mira.factors.program import Factor, FactorProgram, ProgramParseError
 
 ALLOWED_OPERATORS = ("Scale", "Sat", "Gate", "Refactor", "Add", "Prune")
@@ -32,26 +32,15 @@ class Candidate:
     def parsed(self) -> bool:
         return self.program is not None
 
-
-def extract_json_object(text: str) -> dict[str, Any]:
-    """The first top-level JSON object in ``text`` (inside a code fence or surrounded by prose)."""
-    decoder = json.JSONDecoder()
-    start = text.find("{")
-    while start != -1:
-        try:
-            obj, _ = decoder.raw_decode(text, start)
-        except json.JSONDecodeError:
-            start = text.find("{", start + 1)
-            continue
-        if isinstance(obj, dict):
-            return obj
-        start = text.find("{", start + 1)
-    raise ProgramParseError("the reply contains no JSON object")
+    @property
+    def admitted(self) -> bool:
+        """Parsed and not refused by the static checks or the sandbox (efficacy is judged after)."""
+        return self.program is not None and "rejected" not in self.verdicts
 
 
 def parse_candidates(text: str, current: FactorProgram, max_candidates: int) -> list[Candidate]:
     """Candidates of an SRR reply; raises ``ProgramParseError`` when the reply as a whole is unusable."""
-    obj = extract_json_object(text)
+    obj = find_json_object(text, "candidates")
     raw = obj.get("candidates")
     if not isinstance(raw, list) or not raw:
         raise ProgramParseError("the reply's JSON has no non-empty 'candidates' list")

@@ -21,13 +21,35 @@ from mira.srr.hypotheses import Hypothesis
 from mira.tasks.card import TaskCard
 
 OPERATOR_DOCS = {
-    "Scale": "Scale(factor, alpha): multiply an existing factor by a scalar alpha.",
-    "Sat": "Sat(factor, lo, hi): clip a factor to [lo, hi] (or a smooth tanh saturation).",
-    "Gate": "Gate(factor, predicate): multiply a factor by a predicate in [0, 1]; state-only for PHI factors.",
-    "Refactor": "Refactor(factor, code): rewrite a factor as an equivalent but loophole-averse expression.",
-    "Add": "Add(new_factor, code, type): introduce a new physically meaningful signal (PHI or AUX).",
-    "Prune": "Prune(factor): remove an ineffective, redundant or detrimental factor.",
+    "Scale": 'Scale: multiply an existing factor by a scalar. params: {"alpha": number}',
+    "Sat": 'Sat: clip a factor to [lo, hi] (or saturate it smoothly with tanh). params: {"lo": number, "hi": number}',
+    "Gate": ('Gate: multiply a factor by a predicate in [0, 1] (state-only for PHI factors). '
+             'params: {"predicate": "the predicate as an expression over s"}'),
+    "Refactor": ("Refactor: rewrite a factor as an equivalent but loophole-averse expression. params: {} "
+                 "(the new code is the factor's entry in updated_factors)"),
+    "Add": ('Add: introduce a new physically meaningful signal. params: {"type": "PHI" | "AUX"} '
+            "(targets: the new factor's name; its code is in updated_factors)"),
+    "Prune": "Prune: remove an ineffective, redundant or detrimental factor. params: {} (targets: the factors removed)",
 }
+"""Each operator with the shape of its ``params``, as the prompt states them."""
+
+TRIGGERS = {
+    "anomaly": ("TRIGGER: the metacognitive monitor. Its anomaly score of the learning dynamics crossed the "
+                "threshold for several cycles in a row: the diagnostics below look unlike this run's healthy cycles."),
+    "structural": ("TRIGGER: the structural check (not the monitor's anomaly score). Cross-validated over the stored "
+                   "episodes, a task feature that the program does not read explains episodic returns that the "
+                   "program's factors cannot (RETURNS_THE_PROGRAM_CANNOT_EXPLAIN below): the program misses, or "
+                   "misshapes, something the task pays for."),
+    "periodic": "TRIGGER: a periodic review; no diagnostic evidence is given.",
+}
+"""Why SRR was called, in the words of the prompt (:attr:`Evidence.cause`)."""
+
+FACTOR_USAGE = (
+    "HOW THE FACTORS ARE USED: the environment pays only at the end of an episode. The per-step reward the agent "
+    "learns from is r(s, a, s') = sum_i w_i * f_i + b, fitted to the episodes' returns (PHI factors at s', AUX "
+    "at (s, a); weights refitted after every episode), so a factor's sign and scale are learned: an edit matters "
+    "when it changes which quantities, in which form, the program can express."
+)
 
 
 STAGNATION_TOLERANCE = 0.02
@@ -131,39 +153,56 @@ def _attribution_lines(ev: Evidence) -> list[str]:
 
 
 def _diagnostics_block(ev: Evidence, hypotheses: list[Hypothesis]) -> str:
+    """The evidence, with no empty or inert field: what was not measured is left out, and the rule
+    hypotheses (readings of the monitor's diagnostics) only where the monitor triggered."""
     if not ev.guided:
         return "\n".join([
-            "DIAGNOSTICS: none (periodic review without diagnostic evidence).",
             f"RECENT_RETURN: {ev.recent_return:.4g} (baseline {ev.baseline_return:.4g})",
             *_decomposition_lines(ev),
         ])
     vector = ", ".join(f"{k.upper()}={v:.3f}" for k, v in ev.d.items())
     raw = ", ".join(f"{k.upper()}={v:.4g}" for k, v in ev.d_raw.items())
     lines = [
-        "DIAGNOSTICS:",
+        "DIAGNOSTICS (learning dynamics this cycle):",
         f"  vector (robust z-scores, EMA-smoothed): [{vector}]",
         f"  raw: [{raw}]",
-        f"  anomaly_score: {ev.score if ev.score is None else round(ev.score, 4)}"
-        f" (threshold {ev.threshold if ev.threshold is None else round(ev.threshold, 4)})",
-        "  direction_to_healthy (KDE gradient): "
-        + json.dumps({k.upper(): round(v, 4) for k, v in ev.gradient.items()}),
-        "  top_contributors:",
     ]
-    for c in ev.contributors:
-        lines.append(f"    - name: {str(c['metric']).upper()}\n      value: {c['value']:.3f}\n"
-                     f"      comment: \"{c['reading']}\"")
+    if ev.score is not None and ev.threshold is not None and math.isfinite(ev.score):
+        lines.append(f"  anomaly_score: {round(ev.score, 4)} (threshold {round(ev.threshold, 4)})")
+    if any(abs(v) > 0 for v in ev.gradient.values()):
+        lines.append("  direction_to_healthy (KDE gradient): "
+                     + json.dumps({k.upper(): round(v, 4) for k, v in ev.gradient.items()}))
+    if ev.contributors:
+        lines.append("  top_contributors:")
+        for c in ev.contributors:
+            lines.append(f"    - name: {str(c['metric']).upper()}\n      value: {c['value']:.3f}\n"
+                         f"      comment: \"{c['reading']}\"")
     lines.append(f"  recent_return: {ev.recent_return:.4g} (baseline {ev.baseline_return:.4g})")
     if ev.stagnation_band:
         b = ev.stagnation_band
         lines.append(f"  stagnation_band: {b['feature']} = {b['center']:.4g} ± {b['halfwidth']:.4g}")
     if ev.attention:
         lines.append("  factor_attention: " + json.dumps({k: round(v, 4) for k, v in ev.attention.items()}))
-    if hypotheses:
-        lines.append("  failure_hypotheses (preferred operators):")
+    if hypotheses and ev.cause == "anomaly":
+        lines.append("  failure_hypotheses (rule readings of the diagnostics, preferred operators):")
         lines += [f"    - {h.operator}: {h.because}" for h in hypotheses]
     lines += _decomposition_lines(ev)
     lines += _attribution_lines(ev)
     return "\n".join(lines)
+
+
+def _refused_block(refused: list[dict[str, Any]]) -> str:
+    """The candidates the last intervention refused and why, so that a model does not repeat them."""
+    if not refused:
+        return ""
+    lines = [f"PREVIOUSLY_REFUSED (your proposals at step {refused[0].get('step')} and why each was refused; do not "
+             "repeat them unchanged):"]
+    for r in refused:
+        what = "+".join(r.get("operators") or []) or "reply"
+        on = f" on {', '.join(r['targets'])}" if r.get("targets") else ""
+        which = "the reply" if r.get("candidate") is None else f"candidate {r['candidate']}"
+        lines.append(f"  - {which} [{what}{on}]: {r.get('reason')}")
+    return "\n".join(lines) + "\n"
 
 
 def posture_feature(card: TaskCard) -> str | None:
@@ -181,6 +220,7 @@ def build_srr_request(
     max_candidates: int,
     operators: tuple[str, ...],
     action_dim: int,
+    refused: list[dict[str, Any]] | None = None,
 ) -> LLMRequest:
     state_spec, action_spec = card.spec_text(action_dim)
     user = _template("srr_user.txt").substitute(
@@ -190,7 +230,10 @@ def build_srr_request(
         constraints="\n".join(f"  - {c}" for c in card.constraints) or "  - none beyond the instructions",
         version=program.version,
         factors=_factor_block(program),
+        trigger=TRIGGERS.get(evidence.cause, TRIGGERS["anomaly"]),
+        usage=FACTOR_USAGE,
         diagnostics=_diagnostics_block(evidence, hypotheses),
+        refused=_refused_block(refused or []),
         operators="\n".join(f"  - {OPERATOR_DOCS[o]}" for o in operators),
         max_candidates=max_candidates,
     )

@@ -8,11 +8,9 @@ action (AUX, policy-side only), written by an LLM and treated as untrusted code:
 * :mod:`.sandbox`   realizability on real states in a separate, resource-limited process;
 * :mod:`.evaluator` fast in-process evaluation of admitted programs during training;
 * :mod:`.edits`     the admissible edit operators (Scale, Sat, Gate, Refactor, Add, Prune), history;
-* :mod:`.lsfs`      the structured chain-of-thought prompt that asks an LLM for a program;
 * :mod:`.examples`  the paper's section 5.3 programs for HalfCheetah and HumanoidStandup.
 """
 
-from mira.engineer.lsfs_prompt import build_lsfs_messages, parse_program_reply
 from mira.factors.checker import StaticReport, check_code, check_factor, check_program, parse_range_hint
 from mira.factors.compiler import InadmissibleCodeError, compile_factor
 from mira.factors.edits import (
@@ -73,7 +71,6 @@ __all__ = [
     "Violation",
     "apply_edit",
     "apply_edits",
-    "build_lsfs_messages",
     "check_code",
     "check_factor",
     "check_program",
@@ -84,7 +81,6 @@ __all__ = [
     "example_program",
     "example_programs",
     "load_program",
-    "parse_program_reply",
     "parse_range_hint",
     "sandbox_check",
     "save_program",

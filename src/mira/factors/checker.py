@@ -30,7 +30,10 @@ Why each restriction exists:
   so a branch the sandbox never took cannot hide a time bomb;
 * ``s.<name>`` must be a feature the task card declares: there is no next state, no future
   quantity, no hidden simulator handle to read ("no future dependence");
-* a PHI factor may not mention ``a``: it feeds the potential Φ(s), which must be state-only.
+* a PHI factor may not mention ``a``: it feeds the potential Φ(s), which must be state-only;
+* a division, logarithm or square root of a value read from ``s`` or ``a`` must be guarded in the code
+  ("unguarded"): a trained policy reaches states neither the sandbox nor the card's ranges show, so
+  only a bound the code proves (``np.maximum(x, c)``, ``abs(x) + c``, ``c + x ** 2``) holds there.
 
 Metadata (doc, units, range_hint) is required: a missing field is an *error* (the paper makes
 documented units/range an admissibility constraint); a range_hint that does not read ``[lo, hi]``
@@ -47,6 +50,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from mira.factors.guards import unguarded_operations
+from mira.factors.literals import int_literal, is_np_linalg, numeric_literal
 from mira.factors.syntax import MAX_CODE_CHARS
 from mira.factors.violations import Violation
 from mira.factors.whitelist import (
@@ -137,25 +142,6 @@ def parse_range_hint(text: str) -> tuple[float, float] | None:
     return lo, hi
 
 
-def numeric_literal(node: ast.AST) -> float | int | None:
-    """The value of ``3``, ``-2.5``, ``+1`` as a number; None for anything else (bools included)."""
-    sign = 1
-    while isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub | ast.UAdd):
-        if isinstance(node.op, ast.USub):
-            sign = -sign
-        node = node.operand
-    if isinstance(node, ast.Constant) and type(node.value) in (int, float):
-        value = node.value
-        assert isinstance(value, int | float)
-        return sign * value
-    return None
-
-
-def int_literal(node: ast.AST) -> int | None:
-    value = numeric_literal(node)
-    return value if type(value) is int else None
-
-
 def _inert_annotation(node: ast.AST | None) -> bool:
     """Annotations the compiler may drop unevaluated: names, dotted names, strings, None."""
     if node is None:
@@ -222,6 +208,7 @@ class _FunctionChecker:
             body = body[1:]  # docstring: inert, dropped by the compiler
         self._collect_locals(body)
         self._block(body, mult=1, in_loop=False)
+        self.violations.extend(unguarded_operations(self.factor, body))
         if not self.has_return:
             self.fail(fn, "return", "the function never returns a value")
         if self.cost > MAX_COST:
@@ -515,7 +502,7 @@ class _FunctionChecker:
                 self.fail(node, "numpy", f"np.{attr} may only be called")
             elif attr not in NUMPY_CONSTANTS:
                 self.fail(node, "numpy", f"np.{attr} is not an allowed NumPy name")
-        elif _is_np_linalg(base):
+        elif is_np_linalg(base):
             if attr in NUMPY_LINALG_FUNCTIONS:
                 self.fail(node, "numpy", f"np.linalg.{attr} may only be called")
             else:
@@ -614,7 +601,7 @@ class _FunctionChecker:
                 if spec is None:
                     self.fail(func, "numpy", f"{label} is not an allowed NumPy function")
                     return
-            elif _is_np_linalg(func.value):
+            elif is_np_linalg(func.value):
                 spec, label = NUMPY_LINALG_FUNCTIONS.get(func.attr), f"np.linalg.{func.attr}"
                 if spec is None:
                     self.fail(func, "numpy", f"{label} is not an allowed NumPy function")
@@ -669,13 +656,6 @@ class _FunctionChecker:
                 self.fail(kw.value, "call", f"{kw.arg} must be an integer literal")
 
 
-def _is_np_linalg(node: ast.AST) -> bool:
-    return (
-        isinstance(node, ast.Attribute)
-        and node.attr == "linalg"
-        and isinstance(node.value, ast.Name)
-        and node.value.id == "np"
-    )
 
 
 # --------------------------------------------------------------------------- public API

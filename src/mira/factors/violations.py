@@ -42,6 +42,9 @@ RULES: dict[str, str] = {
     "call": "only whitelisted functions may be called, with the allowed arguments",
     "feature": "the state has no such feature (reading undeclared or future quantities is not allowed)",
     "phi-action": "a PHI (state-only) factor may not read the action",
+    "unguarded": "a division, logarithm or square root of a state- or action-dependent value that the code does "
+                 "not provably keep in the operation's domain (away from 0, above 0, at or above 0) wherever the "
+                 "task goes: guard it, e.g. np.maximum(x, c), abs(x) + c or c + x ** 2 with c > 0",
     # metadata
     "metadata": "doc, units and range_hint must be given",
     "range-hint": "range_hint should read '[lo, hi]' with lo <= hi",

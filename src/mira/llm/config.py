@@ -23,6 +23,9 @@ class LLMConfig:
     """Per-request timeout."""
     max_retries: int = 4
     """Retries on connection errors, timeouts, 429 and 5xx, with exponential backoff and jitter."""
+    followups: int = 2
+    """Times a refused reply (unparsable, or failing the checks) is sent back with its errors before the
+    caller falls back; each follow-up is a call in the budget. The offline engineer gets none."""
     max_calls: int | None = 200
     """Per-run budget on LLM calls (None: unlimited)."""
     max_tokens_total: int | None = 2_000_000

@@ -65,6 +65,7 @@ class MiraOuterLoop:
         backend: LLMBackend | None,
         program: FactorProgram,
         action_dim: int,
+        followups: int = 0,
     ) -> None:
         if config.mode not in ("full", "no-mcm", "no-srr"):
             raise ValueError(f"unknown outer-loop mode {config.mode!r}")
@@ -78,7 +79,8 @@ class MiraOuterLoop:
         self.program = program
         self.monitor = MetacognitiveMonitor(config.mcm)
         self.surrogate = EditSurrogate(lambda_comp=config.srr.lambda_comp)
-        self.reframer = None if backend is None else Reframer(config.srr, card, backend, action_dim, self.surrogate)
+        self.reframer = None if backend is None else Reframer(config.srr, card, backend, action_dim,
+                                                                      self.surrogate, followups)
         self.cycle = 0
         self.interventions = 0
         self.prev_actor: dict[str, torch.Tensor] | None = None
@@ -249,6 +251,7 @@ class MiraOuterLoop:
             "prev_actor": self.prev_actor,
             "pending": self.pending_observation,
             "llm": backend_state_dict(self.backend) if self.backend is not None else {},
+            "refused": self.reframer.refused if self.reframer is not None else [],
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -262,6 +265,8 @@ class MiraOuterLoop:
         self.pending_observation = state["pending"]
         if self.backend is not None:
             load_backend_state_dict(self.backend, state["llm"])
+        if self.reframer is not None:
+            self.reframer.refused = list(state.get("refused", []))
 
 
 def save_program_version(directory: Any, old: FactorProgram | None, new: FactorProgram) -> None:

@@ -26,11 +26,11 @@ from typing import Any
 
 import numpy as np
 
+from mira.engineer.admission import admit_program
+from mira.engineer.dialogue import Verdict, converse
 from mira.engineer.srr_candidates import Candidate, parse_candidates
 from mira.engineer.srr_prompt import Evidence, build_srr_request
-from mira.factors.checker import check_program
 from mira.factors.program import FactorProgram, ProgramParseError, code_diff
-from mira.factors.sandbox import SandboxLimits, sandbox_check
 from mira.llm.base import LLMBackend, LLMError
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.runio.failpoints import failpoint
@@ -73,8 +73,12 @@ class Reframer:
         backend: LLMBackend,
         action_dim: int,
         surrogate: EditSurrogate | None = None,
+        followups: int = 0,
     ) -> None:
         self.config = config
+        self.followups = followups
+        self.refused: list[dict[str, Any]] = []
+        """The last intervention's refused candidates and why: the next prompt tells the model."""
         self.card = card
         self.backend = backend
         self.action_dim = action_dim
@@ -100,12 +104,20 @@ class Reframer:
         atomic_write_json(folder / "evidence.json", {**evidence.as_dict(),
                                                      "hypotheses": [h.as_dict() for h in hypotheses]})
         request = build_srr_request(self.card, program, evidence, hypotheses, cfg.max_candidates, cfg.operators,
-                                    self.action_dim)
+                                    self.action_dim, self.refused)
         atomic_write_json(folder / "request.json", request.to_dict())
 
         started = time.monotonic()
+        replies: list[list[Candidate]] = []  # each reply's candidates, admitted or not, for the records
+
+        def judge(text: str) -> Verdict[list[Candidate]]:
+            verdict = self._admit_reply(text, program, sandbox_obs, sandbox_actions)
+            replies.append(verdict.value or [])
+            return verdict if any(c.admitted for c in verdict.value or []) else Verdict(None, verdict.errors,
+                                                                                       verdict.record)
+
         try:
-            reply = self.backend.complete(request)
+            dialogue = converse(self.backend, request, judge, self.followups)
         except LLMError as exc:
             return self._finish(folder, SRRDecision(False, program, f"LLM call failed: {type(exc).__name__}: {exc}",
                                                     backoff=True, failed=True))
@@ -113,12 +125,17 @@ class Reframer:
             log.exception("SRR: the LLM backend raised an unexpected error")
             return self._finish(folder, SRRDecision(False, program, f"LLM call failed: {type(exc).__name__}: {exc}",
                                                     backoff=True, failed=True))
-        atomic_write_text(folder / "response.txt", reply.content)
+        for i, attempt in enumerate(dialogue.attempts[:-1]):
+            atomic_write_text(folder / f"response-{i + 1}.txt", attempt.content)
+        atomic_write_text(folder / "response.txt", dialogue.attempts[-1].content)
+        if len(dialogue.attempts) > 1 or not dialogue.value:
+            atomic_write_json(folder / "attempts.json", [a.as_dict() for a in dialogue.attempts])
         failpoint("srr.after_reply")
-        try:
-            candidates = parse_candidates(reply.content, program, cfg.max_candidates)
-        except ProgramParseError as exc:
-            return self._finish(folder, SRRDecision(False, program, f"reply rejected before any check: {exc}",
+        candidates = replies[-1]
+        if not candidates:  # the last reply as a whole could not be read
+            reason = "; ".join(dialogue.attempts[-1].errors)
+            self.refused = [{"step": evidence.step, "candidate": None, "operators": [], "reason": reason}]
+            return self._finish(folder, SRRDecision(False, program, f"reply rejected before any check: {reason}",
                                                     backoff=True, failed=True))
 
         direction = None
@@ -127,8 +144,8 @@ class Reframer:
         base_r2 = _safe_r2(explain, program) if explain is not None else None
         shortlist: list[tuple[tuple[float, float], Candidate]] = []
         for cand in candidates:
-            passed, j_srr = self._validate(cand, program, eval_obs, sandbox_obs, sandbox_actions, eval_values,
-                                           proxy, direction, seed, explain, base_r2)
+            passed, j_srr = self._validate(cand, program, eval_obs, eval_values, proxy, direction, seed, explain,
+                                           base_r2)
             gain = cand.verdicts.get("returns", {}).get("gain")
             if passed and j_srr is not None:
                 shortlist.append(((gain if gain is not None and np.isfinite(gain) else -np.inf, j_srr), cand))
@@ -143,13 +160,19 @@ class Reframer:
                      verdict)
         atomic_write_json(folder / "candidates.json", [self._candidate_record(c) for c in candidates])
         log.info("SRR: %d candidates, %d passed, %.1f s", len(candidates), len(shortlist), time.monotonic() - started)
+        self.refused = [{"step": evidence.step, "candidate": c.index, "operators": c.operators,
+                         "targets": sorted({t for e in c.edits if isinstance(e, dict)
+                                            for t in e.get("targets", []) if isinstance(t, str)}),
+                         "reason": c.error or c.verdicts.get("rejected", "rejected")}
+                        for c in candidates if c.error or "rejected" in c.verdicts]
         if not shortlist:
             reasons = "; ".join(c.error or c.verdicts.get("rejected", "rejected") for c in candidates)
             return self._finish(folder, SRRDecision(False, program, f"no candidate passed: {reasons}", backoff=True))
         (_, j_best), best = max(shortlist, key=lambda t: t[0])
         assert best.program is not None
         atomic_write_text(folder / "accepted.diff", code_diff(program, best.program))
-        return self._finish(folder, SRRDecision(True, best.program, f"accepted candidate {best.index}", backoff=False,
+        return self._finish(folder, SRRDecision(True, best.program, f"accepted candidate {best.index}"
+                                                f"{choice_reason(shortlist, best.index)}", backoff=False,
                                                 candidate=best.index, operators=best.operators, j_srr=j_best))
 
     # ------------------------------------------------------------------------------------------------
@@ -158,8 +181,6 @@ class Reframer:
         cand: Candidate,
         current: FactorProgram,
         obs: np.ndarray,
-        sandbox_obs: np.ndarray,
-        sandbox_actions: np.ndarray,
         values: np.ndarray,
         proxy: ProxyPotential,
         direction: np.ndarray | None,
@@ -168,25 +189,9 @@ class Reframer:
         base_r2: float | None = None,
     ) -> tuple[bool, float | None]:
         cfg = self.config
-        if cand.program is None:
-            cand.verdicts["rejected"] = f"parse: {cand.error}"
+        if not cand.admitted:
             return False, None
-        static = check_program(cand.program, self.card)
-        cand.verdicts["static"] = {"ok": static.ok, "violations": static.lines()}
-        if not static.ok:
-            cand.verdicts["rejected"] = "static integrity: " + "; ".join(str(v) for v in static.errors)
-            return False, None
-        # Factors the current program already has, unchanged, were admitted before: only what the candidate
-        # changes or adds goes through the sandbox again.
-        known = {(f.name, f.code) for f in current.factors}
-        changed = [f for f in cand.program.factors if (f.name, f.code) not in known]
-        if changed:
-            sandbox = sandbox_check(cand.program.with_factors(changed), self.card, states=sandbox_obs,
-                                    actions=sandbox_actions, limits=SandboxLimits(wall_timeout_s=cfg.sandbox_timeout_s))
-            cand.verdicts["sandbox"] = sandbox.to_dict()
-        if changed and not sandbox.ok:
-            cand.verdicts["rejected"] = "sandbox: " + "; ".join(sandbox.lines())
-            return False, None
+        assert cand.program is not None
         try:
             phi = np.asarray(proxy(cand.program, obs), dtype=np.float64)
         except Exception as exc:  # a proxy failure rejects the candidate, it never stops training
@@ -225,6 +230,37 @@ class Reframer:
                                             f"(or at least {cfg.min_r2_gain})"))
         return ok or explains, j_srr
 
+    def _admit_reply(self, text: str, current: FactorProgram, sandbox_obs: np.ndarray,
+                     sandbox_actions: np.ndarray) -> Verdict[list[Candidate]]:
+        """Parse a reply into candidates and pass each through the parser, the static checks and the sandbox:
+        the gates whose errors a model can fix. Efficacy is judged later, on the admitted ones only."""
+        try:
+            candidates = parse_candidates(text, current, self.config.max_candidates)
+        except ProgramParseError as exc:
+            return Verdict(None, [str(exc)], {"parsed": False, "error": str(exc)})
+        # Factors the current program already has, unchanged, were admitted before: only what a candidate
+        # changes or adds goes through the sandbox again.
+        known = {(f.name, f.code) for f in current.factors}
+        errors: list[str] = []
+        for cand in candidates:
+            if cand.program is None:
+                cand.verdicts["rejected"] = f"parse: {cand.error}"
+                errors.append(str(cand.error))
+                continue
+            changed = [f.name for f in cand.program.factors if (f.name, f.code) not in known]
+            gates = admit_program(cand.program, self.card, states=sandbox_obs, actions=sandbox_actions,
+                                  only=changed, timeout_s=self.config.sandbox_timeout_s)
+            cand.verdicts["static"] = gates.static
+            if gates.sandbox is not None:
+                cand.verdicts["sandbox"] = gates.sandbox.to_dict()
+            if not gates.ok:
+                stage = "sandbox" if gates.sandbox is not None else "static integrity"
+                cand.verdicts["rejected"] = f"{stage}: " + "; ".join(gates.errors)
+                errors += [f"candidate {cand.index}: {e}" for e in gates.errors]
+        record = {"parsed": True, "candidates": [{"index": c.index, "admitted": c.admitted,
+                                                  "rejected": c.verdicts.get("rejected")} for c in candidates]}
+        return Verdict(candidates, errors, record)
+
     @staticmethod
     def _candidate_record(c: Candidate) -> dict[str, Any]:
         return {"index": c.index, "operators": c.operators, "edits": c.edits, "parse_error": c.error,
@@ -235,6 +271,20 @@ class Reframer:
         decision.folder = str(folder)
         atomic_write_json(folder / "decision.json", decision.as_dict())
         return decision
+
+
+def choice_reason(shortlist: list[tuple[tuple[float, float], Candidate]], chosen: int) -> str:
+    """Why the chosen candidate won over the others that passed: candidates are ranked by the return R²
+    they gain (the returns measure what the task pays for), then by J_SRR (the predicted diagnostic
+    improvement), so a higher J_SRR loses to any larger R² gain."""
+    if len(shortlist) < 2:
+        return " (the only candidate that passed)"
+    (gain, j), _ = next(t for t in shortlist if t[1].index == chosen)
+    others = ", ".join(f"candidate {c.index}: R² {'n/a' if not np.isfinite(g) else f'{g:+.3f}'}, J_SRR {jj:.3f}"
+                       for (g, jj), c in shortlist if c.index != chosen)
+    if np.isfinite(gain):
+        return f" (largest return R² gain, {gain:+.3f}, J_SRR {j:.3f}; ranked by R² gain, then J_SRR; {others})"
+    return f" (highest J_SRR, {j:.3f}, no return R² measured; {others})"
 
 
 def allowed_r2_loss(current_r2: float, max_loss: float, max_unexplained_growth: float) -> float:
