@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from relay import Queue, serve  # noqa: E402
+from relay import Queue, serve
 
 ROOT = Path(__file__).resolve().parents[2]
 
