@@ -173,3 +173,43 @@ def test_the_next_srr_prompt_lists_the_candidates_refused_last_time(
     reframer.reframe(tmp_path / "b", program, _structural_evidence(), obs, values, obs, actions, proxy, seed=0)
     second = AuditLog(tmp_path).read()[1]["messages"][1]["content"]
     assert "PREVIOUSLY_REFUSED" in second and "forward_speed" in second and "[Add on r_progress]" in second
+
+
+def test_a_program_file_is_credited_to_its_file_and_an_llm_program_to_the_llm(tmp_path: Path) -> None:
+    from mira.config import TrainConfig
+    from mira.explain import _program_origin
+    from mira.factors.program import save_program
+    from mira.methods.hars import initial_program
+
+    path = tmp_path / "mine.json"
+    save_program(example_program("halfcheetah", 0), path)
+    run = tmp_path / "run"
+    initial_program(TrainConfig(task="halfcheetah", program=str(path)), CARD, run)
+    origin = json.loads((run / "programs" / "origin.json").read_text())
+    assert origin["written_by"] == "file" and origin["file"] == str(path)
+    llm_cfg = {"llm": {"backend": "openai:some-model"}, "program": str(path)}
+    assert _program_origin(run, llm_cfg) == f"was read from {path}"
+
+    llm_run = tmp_path / "llm-run"
+    cfg = TrainConfig(task="halfcheetah")
+    cfg.llm.backend = _script(tmp_path, [_program_reply("forward_speed"), _program_reply("x_velocity")])
+    initial_program(cfg, CARD, llm_run)
+    assert _program_origin(llm_run, {}) == (f"was written by {cfg.llm.backend}, admitted on attempt 2 (the earlier "
+                                            "replies were sent back with their errors)")
+
+
+def test_every_refused_lsfs_reply_falls_back_to_the_offline_engineer_and_says_so(tmp_path: Path) -> None:
+    from mira.config import TrainConfig
+    from mira.explain import _program_origin
+    from mira.methods.hars import initial_program
+
+    cfg = TrainConfig(task="halfcheetah")
+    cfg.llm.backend = _script(tmp_path, [_program_reply("nope")] * 3)
+    program = initial_program(cfg, CARD, tmp_path / "run")
+    assert program.factors  # the offline engineer's program
+    origin = json.loads((tmp_path / "run" / "programs" / "origin.json").read_text())
+    assert origin["written_by"] == "offline" and origin["fallback_from"] == cfg.llm.backend
+    assert len(origin["attempts"]) == 3
+    assert "because every reply of script:" in _program_origin(tmp_path / "run", {})
+    engineers = [e["engineer"] for e in AuditLog(tmp_path / "run").read()]
+    assert len(engineers) == 4 and "not an LLM" in engineers[-1]

@@ -262,6 +262,13 @@ def explain(run_dir: str | Path) -> str:
         hyps = evidence.get("hypotheses") or []
         if hyps:
             lines.append("  hypotheses: " + ", ".join(f"{h['operator']} ({h['because']})" for h in hyps[:3]))
+        attempts = _load(folder / "attempts.json") or []
+        if len(attempts) > 1:
+            refused = [a for a in attempts if not a.get("admitted")]
+            first = "; ".join(refused[0].get("errors", [])[:2]) if refused else ""
+            replies = "reply" if len(refused) == 1 else "replies"
+            lines.append(f"  the engineer answered {_count(len(attempts), 'time')}: {len(refused)} {replies} sent back "
+                         "with the checker's errors" + (f" (first: {first})" if first else ""))
         candidates = _load(folder / "candidates.json") or []
         for c in candidates:
             verdicts = c.get("verdicts", {})
