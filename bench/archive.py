@@ -5,7 +5,8 @@ Run directories (``bench/runs/``) hold checkpoints and replay buffers and stay o
 for every run under each ``OUT`` given, the files a table and an audit need — ``eval.csv`` (the curve
 every table is read from), ``config.json`` (what ran), ``status.json``, ``diagnostics.csv`` (the
 monitor's and the structural check's readings, one row per cycle), the factor programs and each
-intervention's decision and evidence — to ``bench/archive/<OUT's name>/``, keeping the layout, so that
+intervention's decision, evidence and (where a reply was sent back) attempts, and the LLM exchanges
+(``llm/exchanges.jsonl``: every prompt and reply, replayable with ``mira llm export``) — to ``bench/archive/<OUT's name>/``, keeping the layout, so that
 
     python bench/learning.py --table-only --out bench/archive/l19c --steps 100000 --at 50000,100000
     python bench/flawed.py --task halfcheetah --table-only --out bench/archive/flawed_loo --steps 50000
@@ -25,9 +26,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 ARCHIVE = ROOT / "bench" / "archive"
 
-KEPT = ("eval.csv", "config.json", "status.json", "decomposition.json", "diagnostics.csv")
+KEPT = ("eval.csv", "config.json", "status.json", "decomposition.json", "diagnostics.csv", "llm/exchanges.jsonl")
 """Files of a run directory that are copied as they are."""
-KEPT_GLOBS = ("programs/*.json", "interventions/*/decision.json", "interventions/*/evidence.json")
+KEPT_GLOBS = ("programs/*.json", "interventions/*/decision.json", "interventions/*/evidence.json",
+              "interventions/*/attempts.json")
 """Smaller trees of a run directory: its program versions and each intervention's record."""
 
 

@@ -50,10 +50,11 @@ def _buffer(obs_dim: int = 6, act_dim: int = 2) -> ReplayBuffer:
     return buf
 
 
+@pytest.mark.parametrize("kernels", ["fused", "plain"])
 @pytest.mark.parametrize("algo", ["sac", "ddpg"])
-def test_update_moves_parameters_and_state_round_trips(algo: str) -> None:
+def test_update_moves_parameters_and_state_round_trips(algo: str, kernels: str) -> None:
     torch.manual_seed(0)
-    cfg = AgentConfig(hidden=(32, 32), batch_size=32, lr=1e-3)
+    cfg = AgentConfig(hidden=(32, 32), batch_size=32, lr=1e-3, kernels=kernels)
     agent = make_agent(algo, 6, 2, cfg, torch.device("cpu"))
     before = [p.detach().clone() for p in agent.actor.parameters()]  # type: ignore[attr-defined]
     buf, rng = _buffer(), np.random.default_rng(0)
@@ -115,3 +116,29 @@ def test_fused_and_plain_updates_agree(algo: str, policy_delay: int) -> None:
 def test_unknown_kernels_are_refused() -> None:
     with pytest.raises(ValueError, match=r"agent\.kernels"):
         make_agent("sac", 6, 2, AgentConfig(kernels="fast"), torch.device("cpu"))
+
+
+def test_a_pytorch_without_the_fused_path_internals_falls_back_to_the_plain_update(
+        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """Where the start-up self-test finds an internal missing or changed, the agent runs the plain autograd
+    update, says so once, and still learns; where it finds none, the fused path is kept."""
+    import mira.agents as agents
+
+    assert agents.fused_path_problem() is None  # this PyTorch runs the fused path
+    monkeypatch.setattr(agents, "fused_path_problem", lambda: "torch._fused_adam_ is missing")
+    with caplog.at_level("WARNING", logger="mira.agents"):
+        agent = make_agent("sac", 6, 2, AgentConfig(hidden=(32, 32), batch_size=32), torch.device("cpu"))
+    assert agent.config.kernels == "plain"  # type: ignore[attr-defined]
+    assert "plain autograd update" in caplog.text and "_fused_adam_" in caplog.text
+    buf, rng = _buffer(), np.random.default_rng(0)
+    batch = buf.sample(32, rng)
+    assert all(math.isfinite(float(v)) for v in agent.update(batch, batch.reward).values())
+
+
+def test_polyak_averaging_works_without_foreach_lerp(monkeypatch: pytest.MonkeyPatch) -> None:
+    from mira.agents import torch_private as tp
+
+    monkeypatch.delattr(torch, "_foreach_lerp_")
+    a, b = [torch.ones(3)], [torch.full((3,), 3.0)]
+    tp.foreach_lerp_(a, b, 0.25)
+    torch.testing.assert_close(a[0], torch.full((3,), 1.5))

@@ -1,7 +1,7 @@
 """The PyTorch internals of :mod:`mira.agents.torch_private`, each checked against a public reference.
 
-A PyTorch release that renames, removes or changes one of them fails here, by name, before a run uses
-it; the ``torch`` range in ``pyproject.toml`` is the range this file has passed on.
+A PyTorch release that renames, removes or changes one of them fails here, by name; a run on such a
+release finds it at start-up (``fused_path_problem``) and takes the plain autograd update.
 """
 
 from __future__ import annotations
