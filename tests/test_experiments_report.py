@@ -257,7 +257,7 @@ def test_runs_from_program_files_are_their_own_columns_with_their_interventions(
     by_program = {ln.split(" | ")[0]: ln for ln in md.split("by initial program")[1].splitlines()
                   if ln.startswith("| ")}
     assert "80.5 [80.0, 81.0] (2)" in by_program["| the task's own"]
-    assert "| 97.5 [97.5, 97.5] (2) | 3.00 [3.00, 3.00] (2) |" in by_program["| no_progress"]
+    assert "| mean 97.5 [97.5, 97.5] (2) | mean 3.00 [3.00, 3.00] (2) |" in by_program["| no_progress"]
     agg = {(r["algo"], r["method"]): r for r in _rows(out / "aggregate.csv")}
     assert agg[("sac", "hars")]["runs"] == "2"  # the flawed program's hars runs are not in the aggregate
     assert any("program file are left out of the normalised aggregate" in n for n in result.notes)
@@ -271,3 +271,17 @@ def test_runs_from_program_files_are_their_own_columns_with_their_interventions(
     assert float(row["return_before"]) == 15.0 and float(row["return_after"]) == 30.0
     assert "## Interventions" in md and "halfcheetah[no_progress]/sac/mira/seed0 | 20000 |" in md
     assert (out / "curves_sac.png").is_file()
+
+
+def test_three_seeds_get_mean_and_min_max_not_a_confidence_interval(runs: Path, tmp_path: Path) -> None:
+    """A bootstrap over 3 seeds only restates their [min, max] and an IQM of 3 trims nothing: the report says
+    mean [min, max] for such cells and prints no "95% CI"; with 5 seeds the IQM and its interval appear."""
+    md = (write_report([runs], tmp_path / "r3", bootstrap_reps=200, plots=False).out_dir / "report.md").read_text()
+    assert "95%" not in md
+    # mira's seeds average 195 + 10·s over the final 10%: mean 205, [195, 215]
+    assert "mean 205.0 [195.0, 215.0]" in md
+    for s in range(3, 5):
+        make_run(runs, "halfcheetah", "sac", "mira", s, lambda t, s=s: t / 500 + 10 * s)
+    md5 = (write_report([runs], tmp_path / "r5", bootstrap_reps=200, plots=False).out_dir / "report.md").read_text()
+    assert "IQM [95% bootstrap CI] where a cell has at least 5 seeds" in md5
+    assert "mean 205.0 [195.0, 215.0]" not in md5

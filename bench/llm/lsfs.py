@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.replay is not None:
             from mira.llm.export import export_run
 
-            script = args.replay / task / "llm" / "replay.jsonl"
+            script = args.out / "replay" / f"{task}.jsonl"
             export_run(args.replay / task, out=script, fmt="script")
             row = run_card(task, f"script:{script}", None, args.out / "replay", args.followups)
         else:

@@ -47,7 +47,16 @@ from mira.experiments import metrics as M
 from mira.experiments.grid import order_methods, task_label
 from mira.experiments.plots import Curve, plot_learning_curves, plot_run_diagnostics
 from mira.experiments.runs import read_json
-from mira.experiments.tables import SE_UNIT, csv_text, fmt_return, fmt_steps_1e5, md_table
+from mira.experiments.tables import (
+    MIN_SEEDS_FOR_CI,
+    SE_UNIT,
+    csv_text,
+    fmt_return,
+    fmt_steps_1e5,
+    md_table,
+    spread_label,
+    spread_text,
+)
 from mira.explain import interventions, structural_diagnosis
 from mira.runio.atomic import atomic_write_text
 from mira.runio.csvlog import read_csv
@@ -283,13 +292,20 @@ def aggregate(cells: Sequence[CellStats], *, reps: int = 20_000,
             if not strata:
                 continue
             point, low, high = M.stratified_bootstrap_ci(strata, reps=reps, seed=seed)
+            pooled = [v for vs in strata.values() for v in vs]
             rows.append({"algo": algo, "method": method, "tasks": ";".join(sorted(strata)),
-                         "runs": sum(len(v) for v in strata.values()), "normalized_iqm": point,
-                         "ci_low": low, "ci_high": high})
+                         "runs": len(pooled), "normalized_iqm": point, "ci_low": low, "ci_high": high,
+                         "min_seeds": min(len(v) for v in strata.values()),
+                         "normalized_mean": float(sum(pooled) / len(pooled)),
+                         "normalized_min": min(pooled), "normalized_max": max(pooled)})
     return rows, notes
 
 
 # ------------------------------------------------------------------------------------ formatting
+
+
+def _spread_cell(c: CellStats) -> str:
+    return spread_text(c.asymptotic, c.iqm, c.iqm_low, c.iqm_high)
 
 
 def _asym_cell(c: CellStats) -> str:
@@ -367,7 +383,8 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
         ([c.algo, c.task, c.method, len(c.seeds), c.asym_mean, c.asym_std, c.iqm, c.iqm_low, c.iqm_high,
           c.oracle, c.threshold, c.se_mean, c.se_std, c.reached, c.wall_mean, c.program]
          for c in _sorted_cells(cells))))
-    agg_cols = ["algo", "method", "tasks", "runs", "normalized_iqm", "ci_low", "ci_high"]
+    agg_cols = ["algo", "method", "tasks", "runs", "normalized_iqm", "ci_low", "ci_high", "min_seeds",
+                "normalized_mean", "normalized_min", "normalized_max"]
     write("aggregate.csv", csv_text(agg_cols, ([r[k] for k in agg_cols] for r in agg_rows)))
 
     stories = {id(r): interventions(r.path) for r in used}
@@ -427,10 +444,9 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
             row = [METHOD_TITLES.get(m, m)]
             for t in tasks:
                 c = by.get((t, m))
-                row.append(f"{fmt_return(c.iqm)} [{fmt_return(c.iqm_low, c.iqm)}, "
-                           f"{fmt_return(c.iqm_high, c.iqm)}]" if c else "")
+                row.append(_spread_cell(c) if c else "")
             iqm_rows.append(row)
-        md += ["IQM of asymptotic performance over seeds [95% bootstrap CI]:\n",
+        md += [f"Asymptotic performance over seeds: {spread_label([len(c.seeds) for c in acells])}:\n",
                md_table(["Method", *(titles.get(t, t) for t in tasks)], iqm_rows)]
         program_of = {c.panel: (c.task, c.program) for c in acells}
         for task in sorted({c.task for c in acells if c.program}):
@@ -438,19 +454,28 @@ def write_report(paths: Iterable[str | os.PathLike[str]], out_dir: str | os.Path
             own = [t for t in tasks if program_of[t][0] == task]
             cols = [m for m in methods if any((t, m) in by for t in own)]
             md += [f"{algo.upper()} on {task_titles.get(task, task)} by initial program "
-                   "(IQM [95% CI] over seeds, seeds):\n",
+                   f"({spread_label([len(c.seeds) for c in acells if c.task == task])}; seeds):\n",
                    md_table(["Initial program", *(METHOD_TITLES.get(m, m) for m in cols)],
                              [[program_of[t][1] or "the task's own", *(
-                                 f"{fmt_return(c.iqm)} [{fmt_return(c.iqm_low, c.iqm)}, "
-                                 f"{fmt_return(c.iqm_high, c.iqm)}] ({len(c.seeds)})" if c else ""
+                                 f"{_spread_cell(c)} ({len(c.seeds)})" if c else ""
                                  for c in (by.get((t, m)) for m in cols))] for t in own])]
         arows = [r for r in agg_rows if r["algo"] == algo]
         if arows:
-            md += ["Oracle-normalised asymptotic performance, IQM over all tasks and seeds "
-                   "[95% stratified-bootstrap CI]:\n",
-                   md_table(["Method", "IQM", "95% CI", "runs"],
-                             [[METHOD_TITLES.get(r["method"], r["method"]), f"{r['normalized_iqm']:.3f}",
-                               f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}]", str(r["runs"])] for r in arows])]
+            with_ci = [r for r in arows if r["min_seeds"] >= MIN_SEEDS_FOR_CI]
+            few = [r for r in arows if r["min_seeds"] < MIN_SEEDS_FOR_CI]
+            if with_ci:
+                md += ["Oracle-normalised asymptotic performance, IQM over all tasks and seeds "
+                       f"[95% stratified-bootstrap CI] (at least {MIN_SEEDS_FOR_CI} seeds per task):\n",
+                       md_table(["Method", "IQM", "95% CI", "runs"],
+                                 [[METHOD_TITLES.get(r["method"], r["method"]), f"{r['normalized_iqm']:.3f}",
+                                   f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}]", str(r["runs"])] for r in with_ci])]
+            if few:
+                md += ["Oracle-normalised asymptotic performance over all tasks and seeds, mean [min, max] "
+                       f"(fewer than {MIN_SEEDS_FOR_CI} seeds on some task):\n",
+                       md_table(["Method", "mean", "[min, max]", "runs"],
+                                 [[METHOD_TITLES.get(r["method"], r["method"]), f"{r['normalized_mean']:.3f}",
+                                   f"[{r['normalized_min']:.3f}, {r['normalized_max']:.3f}]", str(r["runs"])]
+                                  for r in few])]
         if plots:
             panels = {t: {m: [Curve(r.eval_steps, r.eval_returns) for r in used
                               if (r.algo, r.panel, r.method) == (algo, t, m)] for m in methods} for t in tasks}

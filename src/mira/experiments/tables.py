@@ -52,3 +52,23 @@ def md_table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines) + "\n"
+
+
+MIN_SEEDS_FOR_CI = 5
+"""Below this many seeds a bootstrap over them only restates their minimum and maximum, and an IQM trims
+nothing: such figures are the mean and [min, max], labelled as such."""
+
+def spread_label(seed_counts: list[int]) -> str:
+    """What :func:`spread_text` shows for cells of these many seeds, said once above a table."""
+    if all(n < MIN_SEEDS_FOR_CI for n in seed_counts):
+        return f"mean [min, max] over seeds (fewer than {MIN_SEEDS_FOR_CI} seeds: no interval)"
+    return f"IQM [95% bootstrap CI] where a cell has at least {MIN_SEEDS_FOR_CI} seeds, else mean [min, max]"
+
+
+def spread_text(values: list[float], iqm: float, low: float, high: float) -> str:
+    """A figure over seeds: the IQM with its bootstrap interval from ``MIN_SEEDS_FOR_CI`` seeds, else the
+    mean with the [min, max] of the seeds (marked "mean")."""
+    if len(values) >= MIN_SEEDS_FOR_CI:
+        return f"{fmt_return(iqm)} [{fmt_return(low, iqm)}, {fmt_return(high, iqm)}]"
+    mean = sum(values) / len(values)
+    return f"mean {fmt_return(mean)} [{fmt_return(min(values), mean)}, {fmt_return(max(values), mean)}]"
