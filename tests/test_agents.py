@@ -142,3 +142,15 @@ def test_polyak_averaging_works_without_foreach_lerp(monkeypatch: pytest.MonkeyP
     a, b = [torch.ones(3)], [torch.full((3,), 3.0)]
     tp.foreach_lerp_(a, b, 0.25)
     torch.testing.assert_close(a[0], torch.full((3,), 1.5))
+
+
+def test_the_fused_path_self_test_leaves_the_global_generator_alone() -> None:
+    """It runs inside the first make_agent of a process: drawing from the global generator there would make
+    a run's first agent differ from every later one of the same seed."""
+    from mira.agents import torch_private as tp
+
+    tp.fused_path_problem.cache_clear()
+    torch.manual_seed(3)
+    before = torch.get_rng_state()
+    assert tp.fused_path_problem() is None
+    assert torch.equal(before, torch.get_rng_state())
