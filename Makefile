@@ -9,6 +9,7 @@ test:
 lint:
 	ruff check src tests bench scripts
 	mypy
+	vulture src/mira scripts/vulture_allow.py --min-confidence 60
 
 quickstart:
 	bash scripts/quickstart.sh

@@ -6,7 +6,8 @@ for every run under each ``OUT`` given, the files a table and an audit need — 
 every table is read from), ``config.json`` (what ran), ``status.json``, ``diagnostics.csv`` (the
 monitor's and the structural check's readings, one row per cycle), the factor programs and each
 intervention's decision, evidence and (where a reply was sent back) attempts, and the LLM exchanges
-(``llm/exchanges.jsonl``: every prompt and reply, replayable with ``mira llm export``) — to ``bench/archive/<OUT's name>/``, keeping the layout, so that
+(``llm/exchanges.jsonl``: every prompt and reply, replayable with ``mira llm export``) — to
+``bench/archive/<OUT's name>/``, keeping the layout, so that
 
     python bench/learning.py --table-only --out bench/archive/l19c --steps 100000 --at 50000,100000
     python bench/flawed.py --task halfcheetah --table-only --out bench/archive/flawed_loo --steps 50000

@@ -1,12 +1,15 @@
-"""The import graph of ``src/mira``: cycles and upward arrows between the architecture's layers, and
-modules or classes too long to read.
+"""The import graph of ``src/mira``: cycles between modules and between packages, upward arrows between
+the architecture's layers, and modules or classes too long to read.
 
 Every ``import`` of a ``mira`` module counts, wherever it is written (module level, inside a function,
 under ``TYPE_CHECKING``): a lazy import hides an arrow from the reader, not from the design. Modules are
 grouped into the layers of ``docs/architecture.md``; an arrow may point to the same or a lower layer
-only. A module holds at most ``MAX_MODULE_LINES`` lines and a class ``MAX_CLASS_LINES``, except the
-program checker's AST visitor (one ``visit_*`` per node kind, read one method at a time). Exit status
-1, with every offending arrow, cycle, module and class, when the tree breaks a rule.
+only. Read between packages (``mira.<pkg>``, the first level under ``mira``; a top-level module such as
+``mira.config`` is a node of its own), the same imports form no cycle either: two packages that import
+each other, even through different modules, are one package in all but name. A module holds at most
+``MAX_MODULE_LINES`` lines and a class ``MAX_CLASS_LINES``, except the program checker's AST visitor
+(one ``visit_*`` per node kind, read one method at a time). Exit status 1, with every offending arrow,
+cycle, module and class, when the tree breaks a rule.
 
     python scripts/import_graph.py              # check (CI runs this through the test suite)
     python scripts/import_graph.py --dot        # the package-level graph in Graphviz syntax
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import itertools
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -26,13 +30,13 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 # Lowest first. A module belongs to the layer of the longest prefix listed here ("mira" is the package
 # itself only).
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
-    ("foundation", ("mira", "mira.errors", "mira.runio", "mira.cli_types")),
+    ("foundation", ("mira", "mira.errors", "mira.runio", "mira.cli_types", "mira.version")),
     ("core", ("mira.replay", "mira.tasks", "mira.agents", "mira.rewards", "mira.loop")),
     ("components", ("mira.factors", "mira.llm", "mira.engineer", "mira.shaping", "mira.mcm", "mira.srr",
                     "mira.baselines", "mira.examples")),
     ("methods", ("mira.outer", "mira.config", "mira.methods", "mira.explain", "mira.train_cli")),
     ("experiments", ("mira.experiments",)),
-    ("cli", ("mira.cli", "mira.__main__")),
+    ("cli", ("mira.cli", "mira.__main__", "mira.api")),
 ]
 
 
@@ -53,14 +57,14 @@ def layer_of(module: str) -> int:
     return best
 
 
-def module_name(path: Path) -> str:
-    parts = list(path.relative_to(SRC).with_suffix("").parts)
+def module_name(path: Path, src: Path = SRC) -> str:
+    parts = list(path.relative_to(src).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts.pop()
     return ".".join(parts)
 
 
-def imports_of(path: Path, name: str) -> set[str]:
+def imports_of(path: Path, name: str, src: Path = SRC) -> set[str]:
     """``mira`` modules imported anywhere in the file (``from pkg import mod`` counts ``pkg.mod`` if it is
     a module, else ``pkg``)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
@@ -80,21 +84,23 @@ def imports_of(path: Path, name: str) -> set[str]:
                 continue
             for alias in node.names:
                 sub = f"{target}.{alias.name}"
-                out.add(sub if _exists(sub) else target)
+                out.add(sub if _exists(sub, src) else target)
     out.discard(name)
     return out
 
 
-def _exists(module: str) -> bool:
+def _exists(module: str, src: Path = SRC) -> bool:
     rel = Path(*module.split("."))
-    return (SRC / rel).with_suffix(".py").is_file() or (SRC / rel / "__init__.py").is_file()
+    return (src / rel).with_suffix(".py").is_file() or (src / rel / "__init__.py").is_file()
 
 
-def graph() -> dict[str, set[str]]:
+def graph(src: Path = SRC) -> dict[str, set[str]]:
+    """Module → the ``mira`` modules it imports, for the tree under ``src`` (the directory holding
+    ``mira/``)."""
     edges: dict[str, set[str]] = {}
-    for path in sorted((SRC / "mira").rglob("*.py")):
-        name = module_name(path)
-        edges[name] = imports_of(path, name)
+    for path in sorted((src / "mira").rglob("*.py")):
+        name = module_name(path, src)
+        edges[name] = imports_of(path, name, src)
     return edges
 
 
@@ -174,8 +180,8 @@ def oversized(sources: dict[str, str]) -> list[str]:
     return found
 
 
-def sources() -> dict[str, str]:
-    return {module_name(p): p.read_text(encoding="utf-8") for p in sorted((SRC / "mira").rglob("*.py"))}
+def sources(src: Path = SRC) -> dict[str, str]:
+    return {module_name(p, src): p.read_text(encoding="utf-8") for p in sorted((src / "mira").rglob("*.py"))}
 
 
 def package(module: str) -> str:
@@ -191,6 +197,38 @@ def package_edges(edges: dict[str, set[str]]) -> dict[str, set[str]]:
             if a != b and b != "mira" and a != "mira":
                 pkg_edges[a].add(b)
     return pkg_edges
+
+
+def package_cycles(edges: dict[str, set[str]]) -> list[str]:
+    """Cycles of the package graph, one per strongly connected component of more than one package, as
+    readable lines: the shortest cycle through the component's first package, then the module arrows
+    that make each of its steps."""
+    pkg_edges = package_edges(edges)
+    found = []
+    for component in cycles(dict(pkg_edges)):
+        members = set(component)
+        start = component[0]
+        came_from: dict[str, str] = {}
+        frontier = [start]
+        while start not in came_from:
+            step = []
+            for node in frontier:
+                for nxt in sorted(pkg_edges[node] & members):
+                    if nxt not in came_from:
+                        came_from[nxt] = node
+                        step.append(nxt)
+            frontier = step
+        path = [start]
+        while len(path) == 1 or path[-1] != start:
+            path.append(came_from[path[-1]])
+        path.reverse()
+        steps = []
+        for a, b in itertools.pairwise(path):
+            arrows = sorted(f"{src} -> {dst}" for src, targets in edges.items() for dst in targets
+                            if package(src) == a and package(dst) == b)
+            steps.append(", ".join(arrows))
+        found.append(" -> ".join(path) + " (" + "; ".join(steps) + ")")
+    return found
 
 
 def mermaid(edges: dict[str, set[str]]) -> str:
@@ -229,22 +267,29 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dot", action="store_true", help="print the package graph in Graphviz syntax")
     parser.add_argument("--mermaid", action="store_true", help="print the package graph as a Mermaid block")
+    parser.add_argument("--src", type=Path, default=SRC,
+                        help="the directory holding the mira/ tree to check (default: this repository's src)")
     args = parser.parse_args()
-    edges = graph()
+    edges = graph(args.src)
     if args.dot or args.mermaid:
         print(dot(edges) if args.dot else mermaid(edges))
         return 0
     found_cycles, found_upward = cycles(edges), upward(edges)
     for component in found_cycles:
         print("cycle: " + " <-> ".join(component))
+    found_package_cycles = package_cycles(edges)
+    for line in found_package_cycles:
+        print(f"package cycle: {line}")
     for src, dst in found_upward:
         print(f"upward: {src} ({LAYERS[layer_of(src)][0]}) -> {dst} ({LAYERS[layer_of(dst)][0]})")
-    found_large = oversized(sources())
+    found_large = oversized(sources(args.src))
     for line in found_large:
         print(f"too long: {line}")
-    if found_cycles or found_upward or found_large:
+    if found_cycles or found_package_cycles or found_upward or found_large:
         return 1
-    print(f"import graph: {len(edges)} modules, no cycles, no upward arrows, none too long")
+    packages = {package(m) for m in edges} - {"mira"}
+    print(f"import graph: {len(edges)} modules in {len(packages)} packages, no cycles between modules or "
+          "packages, no upward arrows, none too long")
     return 0
 
 

@@ -6,7 +6,7 @@
 # within minutes. Each trigger has SRR propose three edits, check and verify them, and install the
 # best one that passes the proxy test, or back off. Which happens depends on the CPU model (float
 # rounding, and with it the run's path, differs between models; one machine reproduces a run exactly).
-# What one run showed is in README.md ("Two commands"). Table 1's
+# What a user may see is in README.md ("What the quick start shows"). Table 1's
 # defaults are ΔT = 5,000, a 10-cycle warm-up and two cycles in a row above the threshold (drop the
 # --set flags for those). One intra-op thread: with two, any other job on a 2-core machine stalls
 # every OpenMP barrier (see bench/RESULTS.md).

@@ -25,7 +25,7 @@ def test_store_prunes_overwritten_episodes_in_order() -> None:
     assert len(store) == 3 and store.n_intact() == 3
     _episode(buf, store, 30, 3.0, 3)  # 120 rows written: episode 0 lost its first 20 rows
     assert len(store) == 4 and store.intact_start() == 1 and store.n_intact() == 3
-    assert store.return_range() == (0.0, 3.0)  # episode 0 still has rows in the buffer
+    assert store.prune() == 0 and list(store.returns) == [0.0, 1.0, 2.0, 3.0]  # episode 0 still has rows in the buffer
     _episode(buf, store, 30, 4.0, 4)  # 150 rows: episode 0 is gone entirely, episode 1 partly
     assert list(store.returns) == [1.0, 2.0, 3.0, 4.0]
     assert store.intact_start() == 1

@@ -40,7 +40,8 @@ def test_presets_read_methods_at_run_time() -> None:
     assert small.seeds == [0, 1, 2] and small.steps == PAPER_SMALL_STEPS
     paper = preset_grid("paper")
     assert paper.seeds == [0, 1, 2, 3, 4] and paper.steps == 1_000_000 and set(paper.algos) == {"sac", "ddpg"}
-    assert len(paper.runs()) == len(METHODS) * 2 * 2 * 5
+    assert paper.tasks == ["halfcheetah", "humanoidstandup", "humanoid"]  # Table A1's Humanoid SAC included
+    assert len(paper.runs()) == len(METHODS) * 2 * 3 * 5
     with pytest.raises(UsageError, match="unknown preset"):
         preset_grid("huge")
 
@@ -275,3 +276,21 @@ def test_a_probe_times_a_real_short_run_and_reports_a_failing_one(tmp_path: Path
     bad = probe_speed(RunSpec("nosuchtask", "sparse", "sac", 0, 600), warmup=300, measured=200)
     assert bad.steps_per_s is None and "nosuchtask" in bad.error
     assert not list(Path(tempfile.gettempdir()).glob("mira-probe-*/run/config.json"))
+
+
+def test_the_paper_preset_runs_every_run_with_table_1(tmp_path: Path) -> None:
+    """``mira sweep --preset paper --dry-run``: every command carries ``--preset paper``, whose assignments
+    (Table 1's learning rate, ΔT 5,000) are printed, and Humanoid SAC is among the runs."""
+    import io
+
+    from mira.experiments.sweep import dry_run
+
+    grid = preset_grid("paper")
+    out = io.StringIO()
+    plans = dry_run(grid, tmp_path / "paper", stream=out)
+    text = out.getvalue()
+    assert "agent.lr=1e-4" in text and "hars.lr=1e-4" in text and "mira.mcm.delta_t=5000" in text
+    commands = [line for line in text.splitlines() if "$ " in line]
+    assert len(commands) == len(plans) == len(grid.runs())
+    assert all("--preset paper" in line for line in commands)
+    assert any("--task humanoid " in line and "--algo sac" in line for line in commands)

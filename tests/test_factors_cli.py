@@ -10,7 +10,7 @@ import pytest
 
 from mira.errors import UsageError
 from mira.factors import example_program, save_program
-from mira.factors.cli_impl import check_program_file, format_program
+from mira.factors.cli_impl import check_program_file
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "src" / "mira" / "examples"
 
@@ -99,9 +99,3 @@ def test_usage_errors(tmp_path: Path) -> None:
         check_program_file(bad, "halfcheetah")
     with pytest.raises(UsageError):
         check_program_file(EXAMPLES / "halfcheetah_f0.json", "no-such-task")
-
-
-def test_format_program() -> None:
-    text = format_program(example_program("halfcheetah", 1))
-    assert text.startswith("# factor program for halfcheetah, version 1 (from version 0)")
-    assert "# [PHI] r_vel:" in text and "def r_ctrl(s, a):" in text and "units m/s" in text

@@ -1,8 +1,6 @@
-"""Edit operators (section 4.4.1): semantics, typing, JSON form, history and rollback (with properties)."""
+"""Edit operators (section 4.4.1): semantics, typing, JSON form (with properties)."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,7 +14,6 @@ from mira.factors import (
     Factor,
     FactorProgram,
     Gate,
-    ProgramHistory,
     Prune,
     Refactor,
     Sat,
@@ -223,25 +220,6 @@ def test_json_form_of_appendix_a() -> None:
         apply_edits(example_program("halfcheetah", 0), [])
 
 
-def test_history_rollback_and_persistence(tmp_path: Path) -> None:
-    history = ProgramHistory(example_program("halfcheetah", 0))
-    v1 = history.apply([Scale("r_vel", 0.5)])
-    v2 = history.apply([Gate("r_vel", "1.0 - np.tanh(s.pitch ** 2)")])
-    assert history.versions == [0, 1, 2] and v2.parent_version == 1
-    restored = history.rollback(0)
-    assert restored is history.get(0) and history.current == example_program("halfcheetah", 0)
-    v3 = history.apply([Prune("r_stable")])
-    assert v3.version == 3 and v3.parent_version == 0
-    assert [e["event"] for e in history.events] == ["commit", "commit", "commit", "rollback", "commit"]
-    history.save(tmp_path)
-    loaded = ProgramHistory.load(tmp_path)
-    assert loaded.versions == [0, 1, 2, 3] and loaded.current == v3
-    assert loaded.get(1) == v1 and loaded.get(2) == v2
-    assert (tmp_path / "program_v002.diff").read_text(encoding="utf-8") == v2.diff
-    with pytest.raises(EditError):
-        history.rollback(42)
-
-
 # ------------------------------------------------------------------ properties
 
 PHI_GATES = {
@@ -314,25 +292,3 @@ def test_every_operator_keeps_programs_well_typed(data: st.DataObject, task: str
         program = new
     values = _values(program, task)
     assert all(v.shape == (64,) for v in values.values())
-
-
-@settings(max_examples=20, deadline=None)
-@given(data=st.data())
-def test_rollback_restores_the_exact_version(data: st.DataObject) -> None:
-    history = ProgramHistory(example_program("halfcheetah", 0))
-    snapshots = {0: history.current.to_json()}
-    for step in range(data.draw(st.integers(min_value=1, max_value=5))):
-        edit = data.draw(edit_for(history.current, step))
-        try:
-            new = history.apply([edit])  # type: ignore[list-item]
-        except EditError:
-            continue
-        snapshots[new.version] = new.to_json()
-        if data.draw(st.booleans()):
-            history.rollback(data.draw(st.sampled_from(sorted(snapshots))))
-    target = data.draw(st.sampled_from(sorted(snapshots)))
-    restored = history.rollback(target)
-    assert restored.to_json() == snapshots[target]
-    assert restored == FactorProgram.from_json(snapshots[target])
-    assert restored.content_hash() == FactorProgram.from_json(snapshots[target]).content_hash()
-    assert history.current is restored

@@ -1,5 +1,5 @@
-"""The architecture's rules: no import cycles, no arrow from a lower layer to a higher one, no module or
-class too long to read."""
+"""The architecture's rules: no import cycles between modules or between packages, no arrow from a lower
+layer to a higher one, no module or class too long to read."""
 
 from __future__ import annotations
 
@@ -25,6 +25,43 @@ def test_the_checker_finds_a_cycle_and_an_upward_arrow(tmp_path: Path) -> None:
     edges = {"mira.replay": {"mira.cli"}, "mira.cli": {"mira.replay"}, "mira.errors": set()}
     assert ig.cycles(edges) == [["mira.cli", "mira.replay"]]
     assert ig.upward(edges) == [("mira.replay", "mira.cli")]
+
+
+def test_the_checker_finds_a_cycle_between_packages_that_no_module_cycle_shows(tmp_path: Path) -> None:
+    """Packages that import each other through different modules (one of the imports lazy) are refused,
+    the cycle named with the module arrows that close it; a top-level module is a package of its own."""
+    sys.path.insert(0, str(SCRIPT.parent))
+    try:
+        import import_graph as ig
+    finally:
+        sys.path.pop(0)
+    tree = {
+        "mira/__init__.py": "",
+        "mira/engineer/__init__.py": "",
+        "mira/engineer/prompt.py": "from mira.srr.rules import Rule\n",
+        "mira/srr/__init__.py": "",
+        "mira/srr/rules.py": "class Rule:\n    pass\n",
+        "mira/srr/reframe.py": "def reframe():\n    from mira.engineer import prompt\n    return prompt\n",
+        "mira/config.py": "from mira.outer.settings import OuterSettings\n",
+        "mira/outer/__init__.py": "",
+        "mira/outer/settings.py": "class OuterSettings:\n    pass\n",
+        "mira/outer/loop.py": "import mira.config\n",
+    }
+    for rel, text in tree.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text, encoding="utf-8")
+    edges = ig.graph(tmp_path)
+    assert ig.cycles(edges) == []
+    assert sorted(ig.package_cycles(edges)) == [
+        "mira.config -> mira.outer -> mira.config (mira.config -> mira.outer.settings; mira.outer.loop -> mira.config)",
+        "mira.engineer -> mira.srr -> mira.engineer"
+        " (mira.engineer.prompt -> mira.srr.rules; mira.srr.reframe -> mira.engineer.prompt)",
+    ]
+    done = subprocess.run([sys.executable, str(SCRIPT), "--src", str(tmp_path)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "package cycle: mira.engineer -> mira.srr -> mira.engineer" in done.stdout
+    assert "package cycle: mira.config -> mira.outer -> mira.config" in done.stdout
 
 
 def test_the_checker_finds_a_module_and_a_class_too_long() -> None:

@@ -213,3 +213,23 @@ def test_every_refused_lsfs_reply_falls_back_to_the_offline_engineer_and_says_so
     assert "because every reply of script:" in _program_origin(tmp_path / "run", {})
     engineers = [e["engineer"] for e in AuditLog(tmp_path / "run").read()]
     assert len(engineers) == 4 and "not an LLM" in engineers[-1]
+
+
+def test_a_prune_only_candidate_is_judged_not_lost(tmp_path: Path, states: tuple[np.ndarray, np.ndarray]) -> None:
+    """A candidate that only removes a factor changes no code the sandbox has not seen: it goes on to the
+    efficacy test (it once made the admission step raise, and the whole reply was lost)."""
+    obs, actions = states
+    prune = {"candidates": [{"edits": [{"operator": "Prune", "targets": ["r_stable"], "params": {},
+                                        "justification": "inert"}], "updated_factors": []}]}
+    backend = make_backend(_script(tmp_path, [json.dumps(prune)]), audit_dir=tmp_path)
+    reframer = Reframer(SRRConfig(permutations=100), CARD, backend, action_dim=6, followups=0)
+    values = CARD.feature_values(obs)["x_velocity"]
+
+    def proxy(program, s):  # type: ignore[no-untyped-def]
+        return CARD.feature_values(s)["x_velocity"]
+
+    decision = reframer.reframe(tmp_path / "iv", example_program("halfcheetah", 0), _structural_evidence(), obs,
+                                values, obs, actions, proxy, seed=0)
+    assert not decision.failed
+    (record,) = json.loads((tmp_path / "iv" / "candidates.json").read_text())
+    assert "efficacy" in record["verdicts"] and "r_stable" not in [f["name"] for f in record["program"]["factors"]]

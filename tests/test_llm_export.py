@@ -65,7 +65,7 @@ def test_script_export_replays_the_replies_in_order(tmp_path: Path) -> None:
     assert lines[0]["usage"] == {"prompt_tokens": 11, "completion_tokens": 7}
     script = ScriptBackend(out)  # the extra keys are read past
     replies = [script.complete(first), script.complete(second)]
-    assert [r.content for r in replies] == ["PROGRAM ü", "EDITS"] and script.remaining == 0
+    assert [r.content for r in replies] == ["PROGRAM ü", "EDITS"] and script.position == len(script)
     assert replies[0].usage == TokenUsage(11, 7)
     summary = result.summary()
     assert "wrote 2 exchanges (lsfs 1, srr 1)" in summary and "skipped 1 without a reply (srr 1)" in summary

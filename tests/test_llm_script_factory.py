@@ -68,7 +68,7 @@ def test_script_usage_and_position_checkpoint(tmp_path: Path) -> None:
     state = json.loads(json.dumps(backend.state_dict()))
     resumed = ScriptBackend(path)
     resumed.load_state_dict(state)
-    assert resumed.complete(_request()).content == "b" and resumed.remaining == 1
+    assert resumed.complete(_request()).content == "b" and resumed.position == 2
     path.write_text('{"content": "changed"}\n')
     with pytest.raises(ScriptFormatError, match="changed"):
         ScriptBackend(path).load_state_dict(state)

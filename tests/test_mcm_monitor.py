@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from mira.mcm import MCMConfig, MCMResult, MetacognitiveMonitor, row_fields
+from mira.mcm.config import TABLE1_DELTA_T
 from mira.mcm.records import CycleSnapshot, is_improvement
 
 # Typical raw levels and cycle-to-cycle noise of [PEG, TPD, PVC, FAP, RPE].
@@ -40,6 +41,14 @@ def stream(
     return xs, gs
 
 
+def diagnose_stream(mon: MetacognitiveMonitor, vectors: list[np.ndarray], returns: list[float]) -> list[MCMResult]:
+    """Raw vectors with their cycle returns through :meth:`MetacognitiveMonitor.diagnose_raw`, the
+    trainer's code path, steps advancing by ΔT."""
+    dt = mon.config.delta_t or TABLE1_DELTA_T
+    return [mon.diagnose_raw(v, step=(i + 1) * dt, smoothed_return=g)
+            for i, (v, g) in enumerate(zip(vectors, returns, strict=True))]
+
+
 def triggers(results: list[MCMResult]) -> list[int]:
     return [r.cycle for r in results if r.trigger]
 
@@ -47,7 +56,7 @@ def triggers(results: list[MCMResult]) -> list[int]:
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_stationary_stream_rarely_triggers(seed: int) -> None:
     mon = MetacognitiveMonitor()
-    res = mon.diagnose_stream(*stream(seed, 300))
+    res = diagnose_stream(mon, *stream(seed, 300))
     c = mon.config
     # Warm-up and the min_scores gate: nothing can trigger before K_warm + min_scores cycles.
     assert not any(r.trigger for r in res[: c.k_warm + c.min_scores - 1])
@@ -62,7 +71,7 @@ def test_stationary_stream_rarely_triggers(seed: int) -> None:
 
 def test_persistent_step_triggers_once_then_cooldown() -> None:
     mon = MetacognitiveMonitor()
-    res = mon.diagnose_stream(*stream(0, 200, step_at=150))
+    res = diagnose_stream(mon, *stream(0, 200, step_at=150))
     assert [t for t in triggers(res) if t >= 120] == [151]
     hit = res[151]
     assert hit.above >= mon.config.n_consecutive
@@ -82,7 +91,7 @@ def test_persistent_step_triggers_once_then_cooldown() -> None:
 
 def test_single_cycle_spike_does_not_trigger() -> None:
     mon = MetacognitiveMonitor()
-    res = mon.diagnose_stream(*stream(3, 170, spike_at=150, mag=20.0))
+    res = diagnose_stream(mon, *stream(3, 170, spike_at=150, mag=20.0))
     assert res[150].score > res[150].threshold  # it is seen ...
     assert not any(r.trigger for r in res[140:170])  # ... but is not persistent
 
@@ -90,7 +99,7 @@ def test_single_cycle_spike_does_not_trigger() -> None:
 def test_hysteresis_blocks_retrigger_until_release() -> None:
     cfg = MCMConfig(k_cool=0)
     mon = MetacognitiveMonitor(cfg)
-    res = mon.diagnose_stream(*stream(0, 200, step_at=150, mag=8.0))
+    res = diagnose_stream(mon, *stream(0, 200, step_at=150, mag=8.0))
     after = [t for t in triggers(res) if t >= 150]
     assert after[:1] == [151]
     for t in after[1:]:  # any later trigger needs a return to healthy (release) in between
@@ -103,12 +112,12 @@ def test_buffer_insertion_is_gated_by_return() -> None:
     mon = MetacognitiveMonitor(cfg)
     xs = [CENTER + SCALE * rng.standard_normal(5) for _ in range(60)]
     falling = [100.0 - k for k in range(30)]
-    res = mon.diagnose_stream(xs[:30], falling)
+    res = diagnose_stream(mon, xs[:30], falling)
     scored = [r for r in res if not r.warmup]
     assert scored and not any(r.inserted for r in scored)
     assert mon.buffer_fill == 5
     rising = [200.0 + k for k in range(30)]
-    res = mon.diagnose_stream(xs[30:], rising)
+    res = diagnose_stream(mon, xs[30:], rising)
     assert all(r.inserted for r in res)
     assert mon.buffer_fill == 5 + 30
     for r in res:
@@ -119,7 +128,7 @@ def test_gate_on_anomaly_option() -> None:
     xs = stream(0, 200, step_at=150)[0]
     rising = [float(k) for k in range(200)]  # the return keeps beating its baseline
     for paper in (True, False):
-        res = MetacognitiveMonitor(MCMConfig(insert_when_anomalous=paper)).diagnose_stream(xs, rising)
+        res = diagnose_stream(MetacognitiveMonitor(MCMConfig(insert_when_anomalous=paper)), xs, rising)
         assert any(r.trigger for r in res)
         while_anomalous = [r.inserted for prev, r in itertools.pairwise(res) if prev.anomalous]
         assert while_anomalous
@@ -138,7 +147,7 @@ def test_backoff_and_edit_hooks() -> None:
     mon.on_edit_accepted()
     assert mon.cooldown == mon.config.k_cool
     # the raised q is the one the threshold uses
-    res = mon.diagnose_stream(*stream(0, 40))
+    res = diagnose_stream(mon, *stream(0, 40))
     assert all(r.q == 99.0 for r in res)
     scored = [r.score for r in res if not r.warmup]
     assert res[-1].threshold == pytest.approx(float(np.percentile(scored, 99.0)))
@@ -269,7 +278,7 @@ def test_load_rejects_unknown_version() -> None:
 def test_a_persistent_improvement_is_logged_as_benign_not_triggered(ignore: bool) -> None:
     """PVC jumps *up* (Φ suddenly tracks return better): anomalous, but not a pathology to reframe."""
     mon = MetacognitiveMonitor(MCMConfig(ignore_improvements=ignore))
-    res = mon.diagnose_stream(*stream(0, 200, step_at=150, mag=-5.0))
+    res = diagnose_stream(mon, *stream(0, 200, step_at=150, mag=-5.0))
     late = res[150:]
     if ignore:
         # The step is seen at once (151) and logged as benign; a later trigger, if any, must be led by

@@ -175,7 +175,7 @@ def test_set_program_reinitialises_exactly_phi_and_varphi() -> None:
     for p in src.nets.tce.parameters():  # ψ keeps its Adam moments
         for k, v in src.nets.opt.state[p].items():
             assert torch.equal(v, tce_opt_before[id(p)][k])
-    for p in src.phi_parameters():  # ϕ, φ start with fresh optimiser state
+    for p in [*src.nets.fab.parameters(), *src.nets.vpm.parameters()]:  # ϕ, φ start with fresh optimiser state
         assert p not in src.nets.opt.state
     after = {k: v for m in ("fab", "vpm") for k, v in getattr(src.nets, m).state_dict().items()}
     for k, v in after.items():
@@ -226,10 +226,11 @@ def test_monitor_helpers() -> None:
     # the same factors through the frozen networks: the proxy is the potential itself
     torch.testing.assert_close(src.proxy_potential(toy_factors(), obs), phi, rtol=1e-5, atol=1e-5)
     # a candidate with a new name and a dropped one: frozen networks, finite values, nothing trained
-    before = [p.clone() for p in src.phi_parameters()]
+    before = [p.clone() for m in (src.nets.fab, src.nets.vpm) for p in m.parameters()]
     proxy = src.proxy_potential(toy_factors(("f_a", "f_zz")), obs)
     assert proxy.shape == (50,) and torch.isfinite(proxy).all()
-    assert all(torch.equal(x, y) for x, y in zip(before, src.phi_parameters(), strict=True))
+    after = [p for m in (src.nets.fab, src.nets.vpm) for p in m.parameters()]
+    assert all(torch.equal(x, y) for x, y in zip(before, after, strict=True))
     assert "f_zz" not in src.nets.slots
 
 

@@ -16,6 +16,7 @@ import logging
 import os
 import platform
 import shutil
+import signal
 import subprocess
 import sys
 from collections.abc import Sequence
@@ -25,13 +26,14 @@ from typing import Any
 import torch
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from mira import __version__
-from mira.cli_types import Parser
+from mira.cli_types import Parser, nonneg_int, positive_int
 from mira.config import TrainConfig, from_dict, to_dict
-from mira.errors import DiskFullError, MiraError, NonFiniteError, UsageError
+from mira.errors import DiskFullError, Interrupted, MiraError, NonFiniteError, UsageError
+from mira.loop.stop import sigterm_interrupts
 from mira.methods import build_method
 from mira.tasks.card import card_to_dict, load_task
 from mira.train_cli import add_llm_flags, add_train_arguments, config_from_args
+from mira.version import __version__
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,6 +62,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("explain", help="the story of a run: versions, interventions, evidence, what changed")
     e.add_argument("run_dir")
+
+    ev = sub.add_parser("eval", help="run a trained policy: mean ± std return of deterministic episodes, videos",
+                        description="Play the deterministic policy of RUN_DIR/policy.pt (or --best: policy_best.pt, "
+                                    "or a policy file) on its task's environment, as the run's evaluations do, and "
+                                    "print the mean ± std return. By default the episodes are the run's own "
+                                    "evaluation episodes, so the figure repeats eval.csv's.")
+    ev.add_argument("target", metavar="RUN_DIR_OR_POLICY")
+    ev.add_argument("--episodes", type=positive_int, default=None,
+                    help="episodes to play (default: as many as each of the run's evaluations)")
+    ev.add_argument("--seed", type=nonneg_int, default=None,
+                    help="episode k starts from seed S+k (default: the run's evaluation seeds)")
+    ev.add_argument("--best", action="store_true", help="RUN_DIR/policy_best.pt (the best evaluation's policy)")
+    ev.add_argument("--video", default=None, metavar="DIR",
+                    help="record every episode as an MP4 in DIR (headless: EGL or OSMesa, see docs/using_policies.md)")
 
     lm = sub.add_parser("llm", help="a run's exchanges with its reward engineer")
     lmsub = lm.add_subparsers(dest="llm_command", required=True, parser_class=Parser)
@@ -226,10 +242,15 @@ def cmd_train(args: argparse.Namespace) -> int:
         run.set_status("failed", trainer.step, str(exc))
         print(f"mira: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        run.set_status("interrupted", trainer.step, "interrupted by the user; resume with --resume")
-        print(f"\nmira: interrupted; resume with: mira train --resume {path}", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        signum = exc.signum if isinstance(exc, Interrupted) else int(signal.SIGINT)
+        name = signal.Signals(signum).name
+        kept = (f"checkpoint at step {exc.step}" if isinstance(exc, Interrupted) and exc.checkpointed
+                else "its last checkpoint is kept")
+        run.set_status("interrupted", trainer.step, f"stopped by {name} ({kept}); resume with --resume")
+        print(f"\nmira: stopped by {name} at step {trainer.step} ({kept}); resume with: mira train --resume {path}",
+              file=sys.stderr)
+        return 128 + signum
     except Exception as exc:
         run.set_status("failed", trainer.step, f"{type(exc).__name__}: {exc}")
         print(f"mira: the run failed at step {trainer.step}; after fixing the cause, continue it with "
@@ -281,6 +302,19 @@ def cmd_explain(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_eval(args: argparse.Namespace) -> int:
+    from mira.agents.policy_file import load_policy
+    from mira.loop.playback import evaluate_policy
+
+    policy = load_policy(args.target, best=args.best)
+    print(f"mira eval: {policy.path}: {policy.describe()}")
+    result = evaluate_policy(policy, episodes=args.episodes, seed=args.seed, video_dir=args.video)
+    print(f"mira eval: {result.summary()}")
+    for video in result.videos:
+        print(f"mira eval: video {video}")
+    return 0
+
+
 def cmd_llm(args: argparse.Namespace) -> int:
     from mira.llm.export import export_run
 
@@ -296,11 +330,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if getattr(args, "command", None) == "train" or getattr(args, "quiet", False):
         logging.getLogger("mira").setLevel(logging.INFO)
-    handlers = {"train": cmd_train, "factors": cmd_factors, "explain": cmd_explain, "llm": cmd_llm}
+    handlers = {"train": cmd_train, "factors": cmd_factors, "explain": cmd_explain, "eval": cmd_eval, "llm": cmd_llm}
     try:
         handler = handlers.get(args.command) or args.func
-        result: int = handler(args)
+        with sigterm_interrupts():  # `kill PID` stops a command as Ctrl-C does
+            result: int = handler(args)
         return result
+    except KeyboardInterrupt as exc:  # before a run started, or a command without a run
+        signum = exc.signum if isinstance(exc, Interrupted) else int(signal.SIGINT)
+        print(f"mira {args.command}: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+        return 128 + signum
     except UsageError as exc:
         print(f"mira {args.command}: error: {exc}", file=sys.stderr)
         return 2

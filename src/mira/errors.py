@@ -29,3 +29,14 @@ class DiskFullError(MiraError):
 
 class NonFiniteError(MiraError):
     """A loss or the potential became NaN/Inf; the run stops with its last checkpoint intact."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A run stopped on a signal (SIGINT: Ctrl-C, or SIGTERM); ``signum`` says which. A run that could
+    finish its step first has checkpointed it (``checkpointed``), so ``--resume`` continues from there."""
+
+    def __init__(self, signum: int, step: int | None = None, checkpointed: bool = False) -> None:
+        super().__init__(signum)
+        self.signum = signum
+        self.step = step
+        self.checkpointed = checkpointed

@@ -13,6 +13,7 @@ from typing import Any
 
 from mira.errors import UsageError
 from mira.runio.csvlog import read_csv
+from mira.runio.rundir import describe_status
 
 
 def _load(path: Path) -> Any:
@@ -202,7 +203,7 @@ def explain(run_dir: str | Path) -> str:
     evals = read_csv(run / "eval.csv")
     lines = [
         f"Run {run}: method {cfg['method']} on {cfg['task']} with {cfg['algo'].upper()}, seed {cfg['seed']}, "
-        f"{cfg['steps']} steps; status {status.get('status', 'unknown')} at step {status.get('step', '?')}.",
+        f"{cfg['steps']} steps; status {describe_status(status)}.",
         f"Method: {(cfg_file.get('method') or {}).get('description', cfg['method'])}",
     ]
     env = cfg_file.get("environment") or {}

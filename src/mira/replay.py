@@ -114,6 +114,17 @@ class ReplayBuffer:
         self.open_episode_len = 0
         return rows
 
+    def truncate_open_episode(self, episode_return: float) -> np.ndarray:
+        """End the open episode at its last stored transition, as a time limit would have: that
+        transition becomes truncated and carries the episodic reward (``episode_return``, the sum so far);
+        returns the episode's rows (see :meth:`finish_episode`). For a run stopped mid-episode."""
+        if self.open_episode_len == 0:
+            return np.zeros(0, dtype=np.int64)
+        last = (self.pos - 1) % self.capacity
+        self.truncated[last] = 1.0
+        self.reward[last] = float(episode_return)
+        return self.finish_episode(episode_return)
+
     @property
     def completed_size(self) -> int:
         """Number of stored transitions whose episode has ended."""

@@ -2,7 +2,7 @@
 
 Two backends compute them: PyTorch's BLAS (``torch.addmm``) and the oneDNN linear primitive PyTorch
 also ships, which picks its kernels from the CPU's instruction set (on some CPUs the BLAS does not use
-the widest vector units; bench/RESULTS.md has the figures). The results are the same products up to
+the widest vector units). The results are the same products up to
 float rounding.
 
 The backend is chosen once per process: ``MIRA_GEMM=onednn`` or ``blas``, default ``auto`` (oneDNN

@@ -12,7 +12,7 @@ with :func:`squashed_gaussian_forward` / :func:`squashed_gaussian_backward` for 
 allocations, ReLUs in place, a GEMV for the critics' width-1 output layer, the actor's loss
 backpropagated through ``min_e Q_e`` only where each critic is the minimum, and no
 ``Optimizer.step`` bookkeeping. The plain updates (``AgentConfig.kernels = "plain"``) are the
-reference they are tested against; bench/RESULTS.md has what they buy.
+reference they are tested against.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from mira.agents import gemm
-from mira.agents.torch_private import FUSED_ADAM, foreach_add_, foreach_lerp_, optimizer_has_hooks, relu_backward
+from mira.agents.torch_private import FUSED_ADAM, foreach_add_, optimizer_has_hooks, relu_backward
 
 
 class EnsembleLinear(nn.Module):
@@ -407,12 +407,6 @@ class DeterministicActor(nn.Module):
 
     def forward(self, obs: torch.Tensor, params: Sequence[torch.Tensor] | None = None) -> torch.Tensor:
         return torch.tanh(relu_mlp(self.params() if params is None else params, obs))
-
-
-def polyak_update(online: nn.Module, target: nn.Module, tau: float) -> None:
-    """``target <- (1 - tau) target + tau online`` in one fused foreach call."""
-    with torch.no_grad():
-        foreach_lerp_(list(target.parameters()), list(online.parameters()), tau)
 
 
 def make_adam(params: list[nn.Parameter] | list[torch.Tensor], lr: float) -> torch.optim.Adam:

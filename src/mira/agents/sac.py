@@ -10,7 +10,7 @@ algorithm with autograd, on one screen; :meth:`SAC.update_fused` (the default) r
 through :class:`~mira.agents.networks.EnsembleQKernels` and :class:`~mira.agents.networks.MLPKernels`
 (explicit backward formulas on reused buffers) and steps the optimisers in one fused Adam call. The
 arithmetic, the order of the random draws and the result are the same up to float rounding
-(``tests/test_agents.py``); what the fused path buys is in bench/RESULTS.md.
+(``tests/test_agents.py``); the fused path exists for speed.
 """
 
 from __future__ import annotations

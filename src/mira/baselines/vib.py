@@ -92,13 +92,6 @@ class VIBReward(ReturnDecompositionSource):
         self._kl = kl.detach()
         return model.decode(z), self.vib_config.beta * kl
 
-    def kl_of(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """Per-transition KL(q(z|s,a) ‖ N(0, I)) ``[N]`` (no grad), for inspection and tests."""
-        model: VIBModel = self.model  # type: ignore[assignment]
-        with torch.no_grad():
-            mu, log_std = model.encode(self.norm(self.raw_inputs(obs, action)))
-            return model.kl_to_standard_normal(mu, log_std)
-
     def extra_metrics(self) -> dict[str, torch.Tensor]:
         return {"vib_kl": self._kl}
 

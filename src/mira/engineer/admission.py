@@ -63,9 +63,9 @@ def admit_program(
     out.warnings = [str(v) for v in static.warnings]
     if out.errors:
         return out
+    if only is not None and not any(f.name in only for f in program.factors):
+        return out  # nothing new to run (a Prune, say): what is left was admitted before
     run = program if only is None else program.with_factors([f for f in program.factors if f.name in only])
-    if not run.factors:
-        return out
     limits = SandboxLimits() if timeout_s is None else SandboxLimits(wall_timeout_s=timeout_s)
     report = sandbox_check(run, card, states=states, actions=actions, limits=limits)
     out.sandbox = report

@@ -33,7 +33,6 @@ class RequestContext:
     z: dict[str, float]
     raw: dict[str, float]
     grad: dict[str, float]
-    anomaly_score: float | None
     recent_mean: float | None
     baseline: float | None
     band: dict[str, float | str] | None
@@ -130,7 +129,6 @@ def parse_evidence(context: dict[str, Any]) -> RequestContext:
         z=_floats(context.get("diagnostics")) if guided else {},
         raw=_floats(context.get("raw_diagnostics")) if guided else {},
         grad=_floats(context.get("gradient")) if guided else {},
-        anomaly_score=_opt_float(context.get("anomaly_score")),
         recent_mean=_opt_float(trend.get("recent_mean")),
         baseline=_opt_float(trend.get("baseline")),
         band=band if guided else None,

@@ -188,10 +188,6 @@ def humanoidstandup_program(action_dim: int) -> list[dict[str, Any]]:
     ]
 
 
-def _text(f: CardFeature) -> str:
-    return f"{f.name} {f.doc}".lower()
-
-
 def _direction(description: str) -> tuple[str, float]:
     """Axis and sign of the progress the description asks for (default: forward, +x)."""
     m = re.search(r"([+-])\s*([xyz])\b", description)

@@ -17,7 +17,6 @@ from typing import Any
 
 from mira.factors.program import FactorProgram
 from mira.llm.base import LLMRequest
-from mira.srr.hypotheses import Hypothesis
 from mira.tasks.card import TaskCard
 
 OPERATOR_DOCS = {
@@ -104,6 +103,19 @@ class Evidence:
 
     def as_dict(self) -> dict[str, Any]:
         return dict(vars(self))
+
+
+@dataclass
+class Hypothesis:
+    """A preferred operator with the evidence behind it: a rule reading of the diagnostics that the
+    request passes on (:func:`mira.srr.hypotheses.rule_hypotheses` makes them)."""
+
+    operator: str
+    score: float
+    because: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"operator": self.operator, "score": round(self.score, 4), "because": self.because}
 
 
 def _template(name: str) -> Template:

@@ -44,7 +44,8 @@ def add_sweep_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="comma-separated methods, or 'all' (every registered method)")
     p.add_argument("--algos", default=None, help="comma-separated algos (sac, ddpg)")
     p.add_argument("--seeds", default=None,
-                   help="a count K (seeds 0..K-1), a list 0,1,2 or a range 0-4 (a single seed S: 'S,')")
+                   help="a count K (seeds 0..K-1), a list 0,1,2 or a range 0-4 (a single seed S: 'S,'; "
+                        "0 alone is seed 0)")
     p.add_argument("--steps", type=_positive_int, default=None, help="environment steps per run")
     p.add_argument("--out", required=True, help="sweep output directory")
     p.add_argument("--workers", type=_positive_int, default=None,
@@ -62,10 +63,12 @@ def add_sweep_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help='extra `mira train` flags for every run, e.g. "--eval-episodes 3 --hidden 64,64" '
                         '(a lone flag needs the = form: --train-args="--quiet")')
     p.add_argument("--dry-run", action="store_true",
-                   help="print what each run would do and how long the sweep would take, and exit")
-    p.add_argument("--no-probe", action="store_true",
-                   help="with --dry-run: estimate only from the speeds runs under --out logged, without timing a "
-                        "short run of each task/algo/method they have not")
+                   help="print what each run would do and how long the sweep would take (from the speeds the runs "
+                        "under --out logged), and exit at once")
+    p.add_argument("--probe", action="store_true",
+                   help="with --dry-run: also time a short run of each task/algo/method the runs under --out "
+                        "have not measured (minutes)")
+    p.add_argument("--no-probe", action="store_true", help=argparse.SUPPRESS)  # the default now; still accepted
     p.add_argument("--progress-every", type=_positive_int, default=30, help="seconds between progress lines")
     p.set_defaults(func=cmd_sweep)
     return p
@@ -112,7 +115,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     }
     grid, settings = build_grid(preset=args.preset, file=args.file, overrides=overrides)
     if args.dry_run:
-        dry_run(grid, args.out, workers=settings.get("workers"), probe=not args.no_probe)
+        dry_run(grid, args.out, workers=settings.get("workers"), probe=args.probe and not args.no_probe)
         return 0
     options = SweepOptions(workers=settings.get("workers"), backend=settings.get("backend", "pool"),
                            address=settings.get("address"),

@@ -192,10 +192,7 @@ def check_train_args(train_args: Sequence[str]) -> None:
 
 
 # ------------------------------------------------------------------------------------------ presets
-# paper-small: what a 2-core machine finishes in a few hours. The arithmetic (PRESET_NOTES) uses
-# dense SAC with Table 1 networks (256×256, batch 256) at ~55-60 env steps/s per run on one core:
-# measured 20-35 steps/s per run on a 2-core VM shared with other jobs (load average 3.5-5.5), i.e.
-# with 0.35-0.6 of a core, which scales to ~55-60 steps/s on a core of its own.
+# paper-small: a grid a 2-core machine finishes in a few hours (PRESET_NOTES says what it holds).
 PAPER_SMALL_STEPS = 30_000
 PAPER_SMALL_TRAIN = ["--learning-starts", "5000", "--eval-every", "1500", "--eval-episodes", "3",
                      "--checkpoint-every", "10000", "--log-every", "1000", "--threads", "1"]
@@ -205,17 +202,15 @@ PRESET_NOTES = {
         "every registered method × SAC × {halfcheetah, humanoidstandup} × 3 seeds × 30k steps, 2 workers; "
         "Table 1 networks (256×256) and lr 1e-4; learning starts at 5k; evaluation every 1.5k steps on 3 "
         "episodes (20 evaluations; the final-10% window holds the evaluations at 28.5k and 30k = 6 "
-        "episodes). Six runs per registered method; for 9 methods: 9 × 2 × 3 = 54 runs × 30k = 1.62M "
-        "env steps; at ~55-60 steps/s per run with one run per core, 1.62M / (2 × 58/s) ≈ 3.9 h of "
-        "training, plus 54 × 60k evaluation steps (≈ 30 s per run, ≈ 0.25 h over 2 workers) and process "
-        "start-up: ≈ 4-4.5 h, more for the MIRA family's HARS/MCM overhead; with only dense and sparse "
-        "registered, 12 runs ≈ 1 h. `--steps 20000` cuts it by a third."
+        "episodes). Six runs per registered method: for 9 methods, 54 runs × 30k = 1.62M env steps. "
+        "A small version of the paper's grid, not its budget: `--dry-run --probe` times it on this machine."
     ),
     "paper": (
-        "every registered method × {SAC, DDPG} × {halfcheetah, humanoidstandup} × 5 seeds × 1M steps "
-        "with the Table 1 settings (the `mira train` defaults: lr 1e-4, γ 0.99, 256×256 MLPs, ΔT 5000, "
-        "learning starts 10k, evaluation every 5k steps on 10 episodes). 9 × 2 × 2 × 5 = 180 runs × 1M = "
-        "180M env steps: a cluster job (`--backend ray --address auto`); the paper reports 20-40 h per "
+        "every registered method × {SAC, DDPG} × {halfcheetah, humanoidstandup, humanoid} × 5 seeds × 1M "
+        "steps, every run with `mira train --preset paper` (Table 1: lr 1e-4 for the agent and HARS, "
+        "ΔT 5,000, the monitor's anomaly trigger alone; with the defaults γ 0.99, 256×256 MLPs, batch 256, "
+        "learning starts 10k, evaluation every 5k steps on 10 episodes). 9 × 2 × 3 × 5 = 270 runs × 1M = "
+        "270M env steps: a cluster job (`--backend ray --address auto`); the paper reports 20-40 h per "
         "run on a GPU workstation."
     ),
 }
@@ -228,8 +223,8 @@ def preset_grid(name: str) -> SweepGrid:
         return SweepGrid(["halfcheetah", "humanoidstandup"], methods, ["sac"], [0, 1, 2], PAPER_SMALL_STEPS,
                          list(PAPER_SMALL_TRAIN), preset=name)
     if name == "paper":
-        return SweepGrid(["halfcheetah", "humanoidstandup"], methods, ["sac", "ddpg"], [0, 1, 2, 3, 4],
-                         1_000_000, [], preset=name)
+        return SweepGrid(["halfcheetah", "humanoidstandup", "humanoid"], methods, ["sac", "ddpg"],
+                         [0, 1, 2, 3, 4], 1_000_000, ["--preset", "paper"], preset=name)
     raise UsageError(f"unknown preset {name!r} (available: {', '.join(PRESET_NOTES)})")
 
 
@@ -238,7 +233,8 @@ PRESET_SETTINGS: dict[str, dict[str, Any]] = {"paper-small": {"workers": 2}, "pa
 
 # ------------------------------------------------------------------------------------ value parsing
 def parse_seeds(value: Any, where: str = "--seeds") -> list[int]:
-    """``3`` → [0, 1, 2]; ``"0,2,5"`` or ``[0, 2, 5]`` → those; ``"0-4"`` → 0..4 inclusive."""
+    """``3`` → [0, 1, 2]; ``"0,2,5"`` or ``[0, 2, 5]`` → those; ``"0-4"`` → 0..4 inclusive; ``"0"`` (a
+    count of none) → [0], seed 0."""
     if isinstance(value, bool):
         raise UsageError(f"{where}: expected a seed count or a list of seeds, got {value!r}")
     if isinstance(value, int):
@@ -262,6 +258,8 @@ def parse_seeds(value: Any, where: str = "--seeds") -> list[int]:
                 if hi < lo:
                     raise ValueError
                 return list(range(lo, hi + 1))
+            if int(text) == 0:  # no count of runs is 0: "--seeds 0" asks for seed 0
+                return [0]
             return parse_seeds(int(text), where)
         except ValueError:
             raise UsageError(f"{where}: expected a count (5), a list (0,1,2) or a range (0-4), "

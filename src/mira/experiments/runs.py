@@ -18,6 +18,7 @@ from typing import IO, Any
 
 from mira.experiments.grid import RunSpec, task_label
 from mira.runio.atomic import atomic_write_json
+from mira.runio.rundir import describe_status, stale_reason
 
 STATE_DIR = "_sweep"
 USAGE_EXIT = 2  # `mira train` exit status for bad input: retrying cannot help
@@ -75,8 +76,9 @@ def plan_run(spec: RunSpec, out: str | Path) -> Plan:
         # A shorter run of the same configuration is extended from its last checkpoint, not started over.
         return Plan("resume", f"extend from {cfg['steps']} to {spec.steps} steps (at step {checkpoints[-1]})")
     if checkpoints:
-        return Plan("resume", f"{status.get('status', 'unknown')} at step {status.get('step', '?')}")
-    return Plan("start", f"{status.get('status', 'unknown')} before its first checkpoint", overwrite=True)
+        return Plan("resume", describe_status(status))
+    return Plan("start", f"{stale_reason(status) or status.get('status', 'unknown')} before its first checkpoint",
+                overwrite=True)
 
 
 def train_command(spec: RunSpec, out: str | Path, plan: Plan, python: str | None = None) -> list[str]:
@@ -139,10 +141,16 @@ def _pid_runs(pid: Any, run_dir: Path) -> bool:
 
 
 def busy_elsewhere(spec: RunSpec, out: str | Path) -> bool:
-    """A run still being trained by a process that outlived an earlier sweep (same host)."""
+    """A run still being trained by a process that outlived an earlier sweep, or by a ``mira train``
+    started by hand (same host: its ``status.json`` names a live process)."""
     state = read_state(spec, out)
-    return (state.get("state") == "running" and state.get("host") == socket.gethostname()
-            and _pid_runs(state.get("pid"), spec.run_dir(out)))
+    if (state.get("state") == "running" and state.get("host") == socket.gethostname()
+            and _pid_runs(state.get("pid"), spec.run_dir(out))):
+        return True
+    status = read_json(spec.run_dir(out) / "status.json") or {}
+    pid = status.get("pid")
+    return (status.get("status") == "running" and status.get("host") == socket.gethostname()
+            and isinstance(pid, int) and pid != os.getpid() and stale_reason(status) is None)
 
 
 # ----------------------------------------------------------------------------------- subprocesses

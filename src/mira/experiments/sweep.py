@@ -210,7 +210,7 @@ def write_manifest(grid: SweepGrid, out: Path, options: SweepOptions) -> None:
     A different ``steps`` or ``train_args`` than an earlier grid in the same OUT is refused: the run
     directories would no longer describe one experiment.
     """
-    from mira import __version__
+    from mira.version import __version__
 
     path = out / MANIFEST
     old = read_json(path) or {}
@@ -259,7 +259,7 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         yield
         return
 
-    def handler(signum: int, frame: Any) -> None:
+    def handler(_signum: int, _frame: Any) -> None:
         raise KeyboardInterrupt
 
     previous = signal.signal(signal.SIGTERM, handler)
@@ -279,6 +279,12 @@ def dry_run(grid: SweepGrid, out: str | Path, stream: IO[str] | None = None,
     """
     stream = stream or sys.stdout
     out = Path(out)
+    if "--preset" in grid.train_args:  # say once what the preset sets in every run below
+        from mira.config import PRESETS
+
+        name = grid.train_args[grid.train_args.index("--preset") + 1]
+        print(f"every run: mira train --preset {name} = --set {' --set '.join(PRESETS.get(name, ()))}",
+              file=stream)
     plans = [(spec, plan_run(spec, out)) for spec in grid.runs()]
     for spec, plan in plans:
         cmd = "" if plan.action in ("skip", "conflict") else "  $ " + " ".join(train_command(spec, out, plan))
@@ -320,7 +326,7 @@ def dry_run(grid: SweepGrid, out: str | Path, stream: IO[str] | None = None,
               "(evaluations excluded)" + (f"; not counted: {', '.join(sorted(unknown))}" if unknown else ""),
               file=stream)
     elif unknown:
-        hint = "" if probe else " (without --no-probe a short run of each measures it)"
+        hint = "" if probe else " (--probe times a short run of each)"
         print(f"estimate: none, no run here has logged its speed yet{hint}", file=stream)
     return plans
 

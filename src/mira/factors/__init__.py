@@ -7,7 +7,7 @@ action (AUX, policy-side only), written by an LLM and treated as untrusted code:
 * :mod:`.checker`   static integrity by an AST whitelist, violations with rule ids and lines;
 * :mod:`.sandbox`   realizability on real states in a separate, resource-limited process;
 * :mod:`.evaluator` fast in-process evaluation of admitted programs during training;
-* :mod:`.edits`     the admissible edit operators (Scale, Sat, Gate, Refactor, Add, Prune), history;
+* :mod:`.edits`     the admissible edit operators (Scale, Sat, Gate, Refactor, Add, Prune);
 * :mod:`.examples`  the paper's section 5.3 programs for HalfCheetah and HumanoidStandup.
 """
 
@@ -27,7 +27,6 @@ from mira.factors.edits import (
 )
 from mira.factors.evaluator import CompiledProgram, FactorHealth, FactorRuntimeError
 from mira.factors.examples import example_program, example_programs
-from mira.factors.history import ProgramHistory
 from mira.factors.program import (
     Factor,
     FactorProgram,
@@ -58,7 +57,6 @@ __all__ = [
     "FactorVerdict",
     "Gate",
     "InadmissibleCodeError",
-    "ProgramHistory",
     "ProgramParseError",
     "Prune",
     "Refactor",

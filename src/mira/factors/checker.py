@@ -116,9 +116,6 @@ class StaticReport:
         """True when nothing blocks admission (warnings do not)."""
         return not self.errors
 
-    def for_factor(self, name: str) -> list[Violation]:
-        return [v for v in self.violations if v.factor == name]
-
     def lines(self) -> list[str]:
         return [str(v) for v in self.violations]
 

@@ -14,7 +14,7 @@ import sys
 from typing import TextIO
 
 from mira.factors.checker import check_program
-from mira.factors.program import FactorProgram, ProgramParseError, load_program
+from mira.factors.program import ProgramParseError, load_program
 from mira.factors.sandbox import SandboxLimits, sandbox_check
 from mira.factors.violations import Violation
 
@@ -72,27 +72,3 @@ def check_program_file(
     else:
         print(f"ok: {len(program.factors)} factor(s) pass the static checks (sandbox skipped)", file=stream)
     return 0
-
-
-def format_program(program: FactorProgram) -> str:
-    """A program as people read it: a header, then each factor's metadata and code."""
-    lines = [
-        f"# factor program for {program.task}, version {program.version}"
-        + (f" (from version {program.parent_version})" if program.parent_version is not None else ""),
-        f"# content sha256 {program.content_hash()[:16]}; "
-        f"PHI: {', '.join(f.name for f in program.phi_factors) or '-'}; "
-        f"AUX: {', '.join(f.name for f in program.aux_factors) or '-'}",
-    ]
-    if program.rationale:
-        lines.extend(f"# {line}" for line in program.rationale.splitlines())
-    for f in program.factors:
-        lines.append("")
-        lines.append(f"# [{f.type}] {f.name}: {f.doc}")
-        extra = [f"units {f.units}", f"range {f.range_hint}"]
-        if f.polarity:
-            extra.append(f"polarity {f.polarity}")
-        if f.monotonicity:
-            extra.append(f"monotonicity {f.monotonicity}")
-        lines.append("# " + "; ".join(extra))
-        lines.append(f.code.rstrip("\n"))
-    return "\n".join(lines) + "\n"

@@ -1,4 +1,4 @@
-"""The admissible edit space of section 4.4.1 and a version history with exact rollback.
+"""The admissible edit space of section 4.4.1.
 
 Each operator maps a well-typed program to another well-typed program:
 
@@ -24,8 +24,7 @@ Edits have the JSON form of the paper's Appendix A::
      "params": {"gate": "1 - np.tanh(2.0 * s.pitch ** 2)"}, "justification": "..."}
 
 ``apply_edits`` returns a new program (version + 1, parent version, the edit records, the rationale
-and the unified diff); :class:`~mira.factors.history.ProgramHistory` keeps every version and
-restores any of them exactly.
+and the unified diff).
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ class FactorRuntimeError(MiraError):
 
 @dataclass
 class FactorHealth:
-    """Running counts of what went wrong in one factor (reported in diagnostics and run logs)."""
+    """Running counts of what went wrong in one factor (:attr:`CompiledProgram.health`, one per factor)."""
 
     calls: int = 0
     errors: int = 0

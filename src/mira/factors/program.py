@@ -1,6 +1,6 @@
 """Reward-factor programs: typed, documented, versioned factors in the JSON contract of DESIGN.md.
 
-A :class:`FactorProgram` is an immutable value. Every change (an SRR edit, a rollback) produces a
+A :class:`FactorProgram` is an immutable value. Every change (an SRR edit) produces a
 new program with its own version number, its parent's version, the edits that produced it, the
 rationale and the unified diff of the code, so a run directory can replay the whole history.
 
@@ -57,10 +57,6 @@ class Factor:
     range_hint: str = ""
     polarity: str | None = None
     monotonicity: str | None = None
-
-    @property
-    def is_phi(self) -> bool:
-        return self.type == "PHI"
 
     def to_json(self) -> dict[str, Any]:
         data: dict[str, Any] = {

@@ -91,8 +91,6 @@ class CachedBackend:
         self.inner = inner
         self.cache = ResponseCache(cache_dir)
         self.offline_only = offline_only
-        self.hits = 0
-        self.misses = 0
 
     @property
     def name(self) -> str:
@@ -110,10 +108,8 @@ class CachedBackend:
         key = self.key(request)
         entry = self.cache.get(key)
         if entry is not None:
-            self.hits += 1
             stored = LLMReply.from_dict(entry["reply"])
             return replace(stored, cached=True, attempts=0, latency_s=time.monotonic() - started)
-        self.misses += 1
         if self.offline_only:
             raise LLMCacheMissError(
                 f"offline-only: no cached reply for key {key} ({self.inner.name}:{self.inner.model}, "

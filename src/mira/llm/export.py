@@ -30,7 +30,7 @@ import json
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from mira.errors import UsageError
 from mira.llm.audit import EXCHANGES_FILE
@@ -38,7 +38,6 @@ from mira.llm.base import PURPOSES, LLMReply, LLMRequest, TokenUsage
 from mira.llm.cache import ResponseCache, cache_key
 from mira.runio.atomic import atomic_write_text
 
-Format = Literal["script", "cache"]
 FORMATS: tuple[str, ...] = ("script", "cache")
 DEFAULT_SCRIPT = Path("llm") / "script.jsonl"
 

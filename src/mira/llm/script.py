@@ -37,10 +37,6 @@ class ScriptBackend:
     def __len__(self) -> int:
         return len(self._entries)
 
-    @property
-    def remaining(self) -> int:
-        return len(self._entries) - self.position
-
     def complete(self, request: LLMRequest) -> LLMReply:
         if self.position >= len(self._entries):
             raise ScriptExhaustedError(

@@ -20,7 +20,6 @@ from mira.tasks.envs import EpisodicRewardWrapper
 class EvalResult:
     returns: np.ndarray
     lengths: np.ndarray
-    final_obs: list[np.ndarray]
 
     @property
     def mean(self) -> float:
@@ -32,7 +31,7 @@ class EvalResult:
 
 
 def evaluate(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base: int) -> EvalResult:
-    returns, lengths, finals = [], [], []
+    returns, lengths = [], []
     for k in range(episodes):
         obs, _ = env.reset(seed=seed_base + k)
         total, length, done = 0.0, 0, False
@@ -43,8 +42,7 @@ def evaluate(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base:
             done = terminated or truncated
         returns.append(total)
         lengths.append(length)
-        finals.append(obs)
-    return EvalResult(np.asarray(returns), np.asarray(lengths), finals)
+    return EvalResult(np.asarray(returns), np.asarray(lengths))
 
 
 def collect_rollout(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base: int) -> Rollout:

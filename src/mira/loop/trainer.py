@@ -23,11 +23,13 @@ from tqdm import tqdm
 
 from mira.agents import Agent, make_agent
 from mira.agents.base import AgentConfig
-from mira.errors import CheckpointError, NonFiniteError
+from mira.errors import CheckpointError, Interrupted, NonFiniteError
 from mira.loop.evaluation import EvalResult, collect_rollout, evaluate
 from mira.loop.hooks import CycleContext, CycleHook
 from mira.loop.metrics import MetricSums
+from mira.loop.policies import PolicyKeeper
 from mira.loop.rollout import Rollout
+from mira.loop.stop import StopRequest
 from mira.replay import Batch, ReplayBuffer
 from mira.rewards.base import RewardContext, RewardSource
 from mira.rewards.lookahead import LookaheadSource, Relabelled, resolve
@@ -35,7 +37,7 @@ from mira.runio.checkpoint import load_latest, save_checkpoint
 from mira.runio.csvlog import rewind_csv
 from mira.runio.rundir import RunDir
 from mira.tasks.card import TaskCard
-from mira.tasks.envs import EpisodicRewardWrapper, make_env
+from mira.tasks.envs import EpisodicRewardWrapper, make_env, native_action_space
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +109,6 @@ class Trainer:
         )
         self.step = 0
         self.episode = 0
-        self.episode_len = 0
         self.last_eval: EvalResult | None = None
         self.recent_returns: list[float] = []
         self._next_ckpt = setup.config.checkpoint_every
@@ -116,9 +117,17 @@ class Trainer:
         # when they were relabelled: used one per update, dropped when the revision moves or at a checkpoint.
         self._ahead: list[tuple[Batch, Relabelled]] = []
         self._ahead_revision = -1
+        self.policies = PolicyKeeper(run.path, card, cfg, native_action_space(self.env), obs_dim, act_dim,
+                                     cfg.seed + EVAL_SEED_OFFSET)
 
     # ----------------------------------------------------------------------------------------- run
     def run(self) -> TrainResult:
+        """Train to the step budget. SIGINT and SIGTERM stop the run after the step in progress, with a
+        checkpoint there (:mod:`mira.loop.stop`), raising :class:`~mira.errors.Interrupted`."""
+        with StopRequest() as stop:
+            return self._run(stop)
+
+    def _run(self, stop: StopRequest) -> TrainResult:
         s = self.setup
         resumed = self._restore()
         evals = self.run_dir.eval_log()
@@ -127,7 +136,10 @@ class Trainer:
         # any row at all) will be written again, identically: drop them first.
         for csv_path in sorted(self.run_dir.path.glob("*.csv")):
             rewind_csv(csv_path, self.step)
-        tb = self.run_dir.tensorboard(purge_step=self.step if resumed else None)
+        # Events of steps after the checkpoint will be logged again: TensorBoard drops the old ones from
+        # the step after it on (what was logged at the checkpoint's own step stays, as in the CSVs).
+        had_events = any((self.run_dir.path / "tb").glob("events.*"))
+        tb = self.run_dir.tensorboard(purge_step=self.step + 1 if resumed or had_events else None)
         self.run_dir.set_status("running", self.step)
         if self._obs is None:
             self._obs, _ = self.env.reset(seed=s.config.seed)
@@ -141,6 +153,8 @@ class Trainer:
         postfix: dict[str, Any] = {}
 
         while self.step < s.config.steps:
+            if stop.signum is not None:
+                self._stop(stop.signum)
             # -- collect and store
             if self.step < s.config.learning_starts:
                 action = self.rng.uniform(-1.0, 1.0, self.act_dim).astype(np.float32)
@@ -151,7 +165,6 @@ class Trainer:
                                   self.episode)
             self.reward.on_transition(row)
             self.step += 1
-            self.episode_len += 1
             obs = next_obs
 
             # -- sample, relabel, update
@@ -170,6 +183,7 @@ class Trainer:
                               "length_mean": float(self.last_eval.lengths.mean()),
                               "episodes": s.config.eval_episodes, "wall_s": round(time.perf_counter() - t_start, 3)})
                 tb.add_scalar("eval/return_mean", self.last_eval.mean, self.step)
+                self.policies.on_evaluation(self.agent, self.step, self.last_eval, self.step == s.config.steps)
                 postfix["eval"] = f"{self.last_eval.mean:.1f}"
                 if s.quiet:
                     log.info("step %d: eval return %.2f ± %.2f", self.step, self.last_eval.mean, self.last_eval.std)
@@ -210,7 +224,6 @@ class Trainer:
                 self.reward.on_episode_end(rows, float(info["episode_return"]))
                 self.recent_returns = [*self.recent_returns, float(info["episode_return"])][-10:]
                 self.episode += 1
-                self.episode_len = 0
                 if self.step >= self._next_ckpt or self.step >= s.config.steps:
                     self._checkpoint()
                 obs, _ = self.env.reset()
@@ -275,6 +288,23 @@ class Trainer:
     def _checkpointed_at(self, step: int) -> bool:
         return getattr(self, "_last_ckpt_step", -1) == step
 
+    def _stop(self, signum: int) -> None:
+        """Stop on a signal between two steps: end the running episode there (truncated, its return so
+        far delivered as any episode's is), checkpoint, write ``policy.pt``, raise ``Interrupted``. A
+        resumed run starts a fresh episode; up to there it is the run as it went."""
+        if self.buffer.open_episode_len:
+            ret = self.env.episode_sum
+            rows = self.buffer.truncate_open_episode(ret)
+            self.reward.on_episode_end(rows, ret)
+            self.recent_returns = [*self.recent_returns, ret][-10:]
+            self.episode += 1
+        if not self._checkpointed_at(self.step):
+            self._checkpoint()
+        self.policies.on_interrupt(self.agent, self.step)
+        self.reward.close()
+        self.run_dir.close()
+        raise Interrupted(signum, self.step, checkpointed=True)
+
     def _checkpoint(self, final_partial_episode: bool = False) -> None:
         state = {
             "step": self.step,
@@ -294,7 +324,9 @@ class Trainer:
             "recent_returns": list(self.recent_returns),
             "last_eval": None if self.last_eval is None else {
                 "returns": self.last_eval.returns, "lengths": self.last_eval.lengths},
+            "policies": self.policies.state_dict(),
         }
+        self.run_dir.flush_tensorboard()  # what was logged up to here survives a kill, as the CSV rows do
         save_checkpoint(self.run_dir.checkpoints, self.step, state)
         # Batches sampled ahead are not part of the state: dropping them here, as a resumed run does,
         # keeps the two identical.
@@ -332,7 +364,8 @@ class Trainer:
         self.recent_returns = list(state["recent_returns"])
         if state["last_eval"] is not None:
             le = state["last_eval"]
-            self.last_eval = EvalResult(np.asarray(le["returns"]), np.asarray(le["lengths"]), [])
+            self.last_eval = EvalResult(np.asarray(le["returns"]), np.asarray(le["lengths"]))
+        self.policies.load_state_dict(state.get("policies"), step)
         self._last_ckpt_step = step
         self._next_ckpt = self.setup.config.checkpoint_every
         while self._next_ckpt <= self.step:

@@ -9,7 +9,8 @@ Conventions
 -----------
 * Policy statistics are per-state arrays ``[N, act_dim]``: the mean and the log standard deviation
   of a diagonal Gaussian. For SAC these are the pre-squash (``u``-space) parameters of the
-  tanh-squashed Gaussian ``a = tanh(u)``; for DDPG they come from :func:`gaussian_surrogate`.
+  tanh-squashed Gaussian ``a = tanh(u)``; for DDPG a Gaussian surrogate (section 4.3.1): the mean is
+  the deterministic action, the standard deviation the exploration noise (``DDPG.policy_stats``).
 * All logarithms are natural; entropies and divergences are in nats.
 * Reductions over states are plain means, matching the expectations ``E_{s ~ D_k}`` of the paper.
 """
@@ -87,21 +88,6 @@ def tanh_gaussian_entropy(mean: ArrayLike, log_std: ArrayLike, n_samples: int, r
     return diag_gaussian_entropy(ls) + log_det
 
 
-def gaussian_surrogate(actions: ArrayLike, noise_std: float | ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """Gaussian surrogate ``(mean, log_std)`` for a deterministic policy (DDPG), per section 4.3.1.
-
-    The mean is the deterministic action and the standard deviation is the exploration-noise
-    standard deviation of the current schedule (scalar or per action dimension), so entropy and
-    TPD are defined for DDPG too. ``noise_std`` must be positive: a zero-noise surrogate has no
-    density and its KL is infinite.
-    """
-    mu = _as_f64(actions)
-    std = _as_f64(noise_std)
-    if np.any(std <= 0.0):
-        raise ValueError("noise_std must be > 0 for a Gaussian surrogate")
-    return mu.copy(), np.broadcast_to(np.log(std), mu.shape).astype(np.float64)
-
-
 def d_peg(entropy_now: float, entropy_prev: float, delta_t: float) -> float:
     """Policy-entropy gradient: ``(H_k - H_{k-1}) / ΔT`` (mean entropies over the evaluation states).
 
@@ -115,14 +101,6 @@ def d_peg(entropy_now: float, entropy_prev: float, delta_t: float) -> float:
 # --------------------------------------------------------------------------------------------------
 # Temporal policy divergence
 # --------------------------------------------------------------------------------------------------
-
-
-def kl_diag_gaussians(mu1: ArrayLike, logstd1: ArrayLike, mu2: ArrayLike, logstd2: ArrayLike) -> FloatArray:
-    """Per-state ``KL(N1 || N2)`` of diagonal Gaussians (closed form, summed over action dims)."""
-    m1, l1, m2, l2 = (_as_f64(x) for x in (mu1, logstd1, mu2, logstd2))
-    var1 = np.exp(2.0 * l1)
-    var2 = np.exp(2.0 * l2)
-    return np.sum(l2 - l1 + (var1 + (m1 - m2) ** 2) / (2.0 * var2) - 0.5, axis=-1)
 
 
 def sym_kl_diag_gaussians(mu1: ArrayLike, logstd1: ArrayLike, mu2: ArrayLike, logstd2: ArrayLike) -> float:

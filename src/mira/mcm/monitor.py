@@ -29,7 +29,7 @@ The cooldown is owned here. The trainer must act on ``result.trigger`` alone (Al
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -285,20 +285,6 @@ class MetacognitiveMonitor:
             contributors=contributors,
             benign=benign,
         )
-
-    def diagnose_stream(
-        self, vectors: Iterable[ArrayLike], returns: Iterable[float], start_step: int = 0
-    ) -> list[MCMResult]:
-        """Feed a sequence of raw vectors with their cycle returns through :meth:`diagnose_raw`.
-
-        Steps advance by ``delta_t`` from ``start_step``. A convenience for tests and offline replay
-        of a ``diagnostics.csv``; it takes exactly the same code path as the trainer's calls.
-        """
-        out = []
-        for i, (v, g) in enumerate(zip(vectors, returns, strict=True)):
-            step = start_step + (i + 1) * (self.config.delta_t or TABLE1_DELTA_T)
-            out.append(self.diagnose_raw(v, step=step, smoothed_return=g))
-        return out
 
     # ------------------------------------------------------------------------------ Algorithm 3 hooks
     def on_edit_accepted(self) -> None:

@@ -56,7 +56,7 @@ class CycleSnapshot:
 
     Policy statistics are diagonal-Gaussian ``(mean, log_std)`` rows ``[N, act_dim]`` on the cycle's
     held-out evaluation states: for SAC the pre-squash parameters (``squashed=True``), for DDPG the
-    surrogate of :func:`mira.mcm.metrics.gaussian_surrogate` (``squashed=False``).
+    Gaussian surrogate of ``DDPG.policy_stats`` (``squashed=False``).
     """
 
     step: int

@@ -32,15 +32,14 @@ class OuterLoopConfig:
     """Fraction of what the program leaves unexplained (1 − its out-of-sample R²) that gain must cover.
     A missing factor, a loophole proxy or a misplaced gate leaves a residual that one task feature
     explains almost entirely; a feature that merely correlates with a skill the agent is acquiring (a
-    gait angle) explains part of it (measured shares: bench/RESULTS.md, "Repairing flawed programs")."""
+    gait angle) explains part of it."""
     repair_cycles: int = 3
     """Cycles in a row with such a feature before SRR is called."""
     repair_min_episodes: int = 10
     """Stored episodes needed before the attribution is measured (two per fold of its cross-validation).
     Few enough that a flaw the random warm-up's episodes already show is repaired about when learning
-    starts, before the policy commits to what the flawed program pays for: at 20 (13k steps later on
-    HalfCheetah) the agent had learned to move pitched over under a gate that paid only there, and the
-    repair did not undo it by 50k (bench/RESULTS.md, "Repairing flawed programs")."""
+    starts, before the policy commits to what the flawed program pays for (a policy that has learned
+    what a flaw pays for is slow to unlearn it after the repair)."""
     repair_max_episodes: int = 200
     """The attribution uses at most this many of the latest stored episodes."""
     repair_folds: int = 5

@@ -87,13 +87,6 @@ class EpisodeStore:
     def n_intact(self) -> int:
         return len(self) - self.intact_start()
 
-    def return_range(self) -> tuple[float, float] | None:
-        """(min, max) of the returns of episodes still present in the buffer, or None if there are none."""
-        self.prune()
-        if not len(self):
-            return None
-        return float(self.returns.min()), float(self.returns.max())
-
     def start_rows(self, idx: np.ndarray) -> np.ndarray:
         return self.first[idx] % self.buffer.capacity
 

@@ -4,7 +4,10 @@
 
     RUN_DIR/
       config.json        resolved TrainConfig + task card + versions (enough to rerun)
-      status.json        running / finished / failed, with the last step and message
+      status.json        running / finished / failed / interrupted, with the last step and message, the
+                         process writing it (pid, host) and its heartbeat
+      policy.pt          the policy at the latest evaluation (the final one at the end); policy_best.pt:
+                         at the best evaluation (mira.agents.policy_file)
       eval.csv           step, return mean/std, episode length, wall seconds
       train.csv          losses, entropy / temperature, steps/s, reward-source scalars
       tb/                TensorBoard scalars
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import socket
 import time
 from pathlib import Path
 from typing import Any
@@ -69,11 +73,13 @@ class RunDir:
 
     def set_status(self, status: str, step: int, message: str = "", **progress: Any) -> None:
         """``status.json``: the run's state and step, and while it runs its progress figures (steps/s,
-        the last evaluation, the program version), rewritten atomically at every log interval."""
+        the last evaluation, the program version), rewritten atomically at every log interval. It names
+        the process writing it (``pid``, ``pid_start``, ``host``) and when (``heartbeat``, Unix seconds),
+        so that a "running" status left by a killed process is recognised (:func:`stale_reason`)."""
         atomic_write_json(
             self.path / "status.json",
             {"status": status, "step": step, "message": message, "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
-             **progress},
+             **progress, **process_identity(), "heartbeat": round(time.time(), 3)},
         )
 
     def eval_log(self) -> CsvLog:
@@ -90,7 +96,63 @@ class RunDir:
             self._tb = SummaryWriter(str(self.path / "tb"), purge_step=purge_step, flush_secs=30)
         return self._tb
 
+    def flush_tensorboard(self) -> None:
+        """Write out the TensorBoard events logged so far (a checkpoint does, so that a kill after it
+        loses none of them)."""
+        if self._tb is not None:
+            self._tb.flush()
+
     def close(self) -> None:
         if self._tb is not None:
             self._tb.close()
             self._tb = None
+
+
+def _start_time(pid: int) -> int | None:
+    """When process ``pid`` started (clock ticks since boot, from ``/proc``), or None where there is no
+    ``/proc`` or no such process: with the pid, it tells a process from a later one given the same pid."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text(encoding="utf-8")
+        return int(stat[stat.rindex(")") + 2:].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def process_identity() -> dict[str, Any]:
+    """``pid``, ``pid_start`` and ``host`` of this process, as ``status.json`` records them."""
+    pid = os.getpid()
+    return {"pid": pid, "pid_start": _start_time(pid), "host": socket.gethostname()}
+
+
+def stale_reason(status: dict[str, Any]) -> str | None:
+    """Why a ``status.json`` that says "running" is not true any more: its process, on this host, is
+    gone (killed, or the machine restarted); None when it may still run, when it is not "running", or
+    when it cannot be told (another host, or a status written before it named its process)."""
+    if status.get("status") != "running":
+        return None
+    pid = status.get("pid")
+    if not isinstance(pid, int) or pid <= 0 or status.get("host") != socket.gethostname():
+        return None
+    try:
+        os.kill(pid, 0)
+        alive = True
+    except ProcessLookupError:
+        alive = False
+    except PermissionError:  # someone else's process: it exists
+        alive = True
+    if alive and status.get("pid_start") is not None and _start_time(pid) not in (None, status["pid_start"]):
+        alive = False  # the pid now belongs to a later process
+    if alive:
+        return None
+    beat = status.get("heartbeat")
+    when = "" if not isinstance(beat, int | float) else \
+        f", last heard of {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(beat))}"
+    return f"stopped without a word (killed?): its process {pid} is gone{when}"
+
+
+def describe_status(status: dict[str, Any]) -> str:
+    """``running at step 800``, ``finished at step 3000``, or for a stale "running" status
+    ``stopped without a word (killed?) ... at step 800``."""
+    state = str(status.get("status", "unknown"))
+    stale = stale_reason(status)
+    return f"{stale if stale else state} at step {status.get('step', '?')}"

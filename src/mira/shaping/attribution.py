@@ -28,9 +28,6 @@ import numpy as np
 
 from mira.rewards.decomposition import EpisodeSumRegression
 
-FORMS = ("value", "neg_square")
-"""The shapes a feature is tried in: ``s.f`` and ``-(s.f ** 2)``."""
-
 
 def cv_r2(sums: np.ndarray, returns: np.ndarray, ridge: float, folds: int = 5, centred: bool = False,
           select: bool = False) -> float:

@@ -9,7 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 DEFAULT_DECOMPOSED_KAPPA = 0.0
-"""κ under ``decomposed`` alignment when ``shaping_weight`` is None (measured: bench/RESULTS.md)."""
+"""κ under ``decomposed`` alignment when ``shaping_weight`` is None: the agent learns from r̂ alone. A
+potential of the returns' scale added to r̂ destabilises the critic where returns are large."""
 
 
 @dataclass
@@ -20,11 +21,11 @@ class HarsConfig:
     """What Φ is TD-aligned to and what the agent's reward is built on. ``decomposed`` (default): the
     decomposition head's per-step r̂ (L_align's target r̂ + γ(1 − d)Φ(s′); agent reward
     r̂ + κ(γΦ(s′) − Φ(s))). ``episodic``: the paper's letter, the extrinsic episodic reward r_ext (0 on
-    every step but the last) in both places; it does not learn in the episodic setting (bench/RESULTS.md)."""
+    every step but the last) in both places; Φ then learns only how near the episode's end a state is,
+    so it does not learn in the episodic setting."""
     shaping_weight: float | None = None
     """κ, the weight of the PBRS term γΦ(s′) − Φ(s) in the agent's reward. None: 1 under ``episodic``
-    alignment (the paper), and under ``decomposed`` the value measured to learn best (see
-    ``DEFAULT_DECOMPOSED_KAPPA`` and bench/RESULTS.md)."""
+    alignment (the paper), and under ``decomposed`` ``DEFAULT_DECOMPOSED_KAPPA``."""
     decompose_phi_at: str = "next"
     """Where the decomposition head reads PHI factors: ``next`` (s′, the state the step's reward was
     earned into), ``state`` (s) or ``both``. AUX factors are always read at (s, a)."""
@@ -36,7 +37,7 @@ class HarsConfig:
     error, so that it fades as the episodes pin the weights down. Summed over an episode, a program's
     factors are nearly collinear (effort, posture and the bias move with speed); a fixed ridge moves
     weight along that direction (a control cost fitted as a bonus), while the selected one lets the
-    returns decide and recovers the task's own weights (bench/RESULTS.md, "The head's ridge"). False:
+    returns decide and recovers the task's own weights. False:
     the fixed ``decompose_ridge``."""
     decompose_ridge_centred: bool = True
     """Scale each feature's ridge penalty by its variance across episodes rather than its mean square

@@ -396,11 +396,6 @@ class HarsReward(LookaheadSource):
         """The current :class:`FactorProgram` when the factor source has one (else None)."""
         return getattr(self.factors, "program", None)
 
-    def phi_parameters(self) -> list[torch.nn.Parameter]:
-        """ϕ and φ: what a structural edit re-initialises."""
-        self.sync()
-        return [*self.nets.fab.parameters(), *self.nets.vpm.parameters()]
-
     def describe(self) -> dict[str, Any]:
         prog = self.program
         return {"method": self.name, "phi_factors": list(self.factors.phi_names),

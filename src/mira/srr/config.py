@@ -35,8 +35,7 @@ class SRRConfig:
     max_r2_loss: float = 0.05
     """... and a candidate fails, whatever its proxy test, when its out-of-sample R² of the stored returns
     is below the current program's by more than this: it would express what the task pays for worse,
-    and the AUC test, whose labels come from the current program, cannot see that (the case that
-    motivated it: bench/RESULTS.md, HumanoidStandup)."""
+    and the AUC test, whose labels come from the current program, cannot see that."""
     max_unexplained_growth: float = 1.0
     """... or by more than this multiple of what the current program leaves unexplained (1 − its R²), when
     that is smaller: a program that explains the returns almost exactly (R² 0.99998 once the head's

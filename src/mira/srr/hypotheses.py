@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from mira.engineer.srr_prompt import Hypothesis
+
 METRICS = ("peg", "tpd", "pvc", "fap", "rpe")
 OPERATORS = ("Scale", "Sat", "Gate", "Refactor", "Add", "Prune")
 
@@ -41,18 +43,6 @@ PRIOR_JF = np.array(
 DEFAULT_DIRECTION = np.array([1.0, -1.0, 1.0, 1.0, -1.0])
 
 DEFAULT_WEIGHTS = np.array([0.5, 0.5, 1.0, 0.5, 1.0])
-
-
-@dataclass
-class Hypothesis:
-    """A preferred operator with the evidence behind it."""
-
-    operator: str
-    score: float
-    because: str
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"operator": self.operator, "score": round(self.score, 4), "because": self.because}
 
 
 def rule_hypotheses(

@@ -248,8 +248,14 @@ class Reframer:
                 errors.append(str(cand.error))
                 continue
             changed = [f.name for f in cand.program.factors if (f.name, f.code) not in known]
-            gates = admit_program(cand.program, self.card, states=sandbox_obs, actions=sandbox_actions,
-                                  only=changed, timeout_s=self.config.sandbox_timeout_s)
+            try:
+                gates = admit_program(cand.program, self.card, states=sandbox_obs, actions=sandbox_actions,
+                                      only=changed, timeout_s=self.config.sandbox_timeout_s)
+            except Exception as exc:  # a fault of the checks must cost this candidate, never the reply
+                log.exception("SRR: checking candidate %d failed", cand.index)
+                cand.verdicts["rejected"] = f"the checks failed on it: {type(exc).__name__}: {exc}"
+                errors.append(f"candidate {cand.index}: could not be checked ({type(exc).__name__}: {exc})")
+                continue
             cand.verdicts["static"] = gates.static
             if gates.sandbox is not None:
                 cand.verdicts["sandbox"] = gates.sandbox.to_dict()

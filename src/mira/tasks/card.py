@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import ast
 import difflib
+import importlib
+import os
+import sys
 import tomllib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -410,14 +413,53 @@ def load_task(name_or_path: str, check_env: bool = True) -> TaskCard:
     return card
 
 
+def import_env_module(env_id: str, card_path: str | None = None) -> str:
+    """The Gymnasium id of ``env_id``, having imported its module first when it is written
+    ``"module:Env-v0"`` (as ``gymnasium.make`` accepts it: the module registers the environment when
+    imported).
+
+    The module is imported as Python finds it (installed, or on ``PYTHONPATH``); failing that, from the
+    directory of the card that names it (``card_path``), then from the current directory, which are
+    added to ``sys.path`` for the rest of the process.
+    """
+    module, sep, name = env_id.partition(":")
+    if not sep:
+        return env_id
+    if not module or not name:
+        raise TaskCardError(f"environment {env_id!r}: expected module:Env-v0")
+    try:
+        importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        if exc.name != module.split(".")[0] and exc.name != module:
+            raise TaskCardError(f"environment {env_id!r}: importing {module!r} failed: {exc}") from exc
+        places = [str(Path(card_path).resolve().parent)] if card_path else []
+        places.append(os.getcwd())
+        for place in places:
+            if place not in sys.path:
+                sys.path.append(place)
+        try:
+            importlib.import_module(module)
+        except ModuleNotFoundError as again:
+            raise TaskCardError(
+                f"environment {env_id!r}: no module {module!r} (looked on sys.path, then in "
+                f"{' and '.join(places)}); install it or put it on PYTHONPATH") from again
+    except Exception as exc:  # the user's module itself fails: say so, with its error
+        raise TaskCardError(f"environment {env_id!r}: importing {module!r} failed: "
+                            f"{type(exc).__name__}: {exc}") from exc
+    return name
+
+
 def _check_env_registered(card: TaskCard) -> None:
     import gymnasium
 
+    env_id = import_env_module(card.env_id, card.source_path)
     try:
-        gymnasium.spec(card.env_id)
+        gymnasium.spec(env_id)
     except gymnasium.error.Error as exc:
+        where = f" (module {card.env_id.partition(':')[0]!r} was imported but did not register it)" \
+            if env_id != card.env_id else ""
         raise TaskCardError(
-            f"task card {card.name!r}: environment {card.env_id!r} is not registered with Gymnasium ({exc})"
+            f"task card {card.name!r}: environment {env_id!r} is not registered with Gymnasium{where} ({exc})"
         ) from exc
 
 

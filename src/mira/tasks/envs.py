@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 from mira.errors import TaskCardError
-from mira.tasks.card import TaskCard
+from mira.tasks.card import TaskCard, import_env_module
 
 
 class EpisodicRewardWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
@@ -89,18 +89,24 @@ def action_dim(card: TaskCard) -> int:
         env.close()
 
 
-def make_env(card: TaskCard, seed: int | None = None, max_episode_steps: int | None = None) -> EpisodicRewardWrapper:
+def make_env(card: TaskCard, seed: int | None = None, max_episode_steps: int | None = None,
+             render_mode: str | None = None) -> EpisodicRewardWrapper:
     """Create the task's environment with actions rescaled to [-1, 1] and the episodic reward.
 
     The card is bound to the observation size, so a feature index outside the observation is
-    reported here, before any training.
+    reported here, before any training. An ``env_id`` written ``module:Env-v0`` imports ``module``
+    first (:func:`~mira.tasks.card.import_env_module`). ``render_mode`` goes to ``gymnasium.make``
+    (``"rgb_array"`` for videos).
     """
     _filter_mujoco_warnings()
+    env_id = import_env_module(card.env_id, card.source_path)
     try:
         kwargs = dict(card.env_kwargs)
         if max_episode_steps is not None:
             kwargs["max_episode_steps"] = max_episode_steps
-        env = gym.make(card.env_id, **kwargs)
+        if render_mode is not None:
+            kwargs["render_mode"] = render_mode
+        env = gym.make(env_id, **kwargs)
     except gym.error.Error as exc:
         raise TaskCardError(f"task {card.name!r}: cannot create environment {card.env_id!r}: {exc}") from exc
     obs_space, act_space = env.observation_space, env.action_space
@@ -119,3 +125,17 @@ def make_env(card: TaskCard, seed: int | None = None, max_episode_steps: int | N
     if seed is not None:
         wrapped.action_space.seed(seed)
     return wrapped
+
+
+def native_action_space(env: gym.Env[Any, Any]) -> gym.spaces.Box:
+    """The environment's own action space under :func:`make_env`'s rescaling to [-1, 1] (what a policy
+    file records, so that it can answer in the environment's own bounds)."""
+    inner: Any = env
+    while isinstance(inner, gym.Wrapper):
+        if isinstance(inner, gym.wrappers.RescaleAction):
+            inner = inner.env
+            break
+        inner = inner.env
+    space = inner.action_space if isinstance(inner, gym.Env) else env.action_space
+    assert isinstance(space, gym.spaces.Box)
+    return space
