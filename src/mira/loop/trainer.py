@@ -34,8 +34,8 @@ from mira.replay import Batch, ReplayBuffer
 from mira.rewards.base import RewardContext, RewardSource
 from mira.rewards.lookahead import LookaheadSource, Relabelled, resolve
 from mira.runio.checkpoint import load_latest, save_checkpoint
-from mira.runio.csvlog import rewind_csv
-from mira.runio.rundir import RunDir
+from mira.runio.logger import CsvSink, RunLogger, TensorBoardSink
+from mira.runio.rundir import EVAL_FIELDS, RunDir
 from mira.tasks.card import TaskCard
 from mira.tasks.envs import EpisodicRewardWrapper, make_env, native_action_space
 
@@ -117,6 +117,9 @@ class Trainer:
         # when they were relabelled: used one per update, dropped when the revision moves or at a checkpoint.
         self._ahead: list[tuple[Batch, Relabelled]] = []
         self._ahead_revision = -1
+        self.csv: CsvSink | None = None
+        self.logger: RunLogger | None = None
+        """The run's logs (CSV files and TensorBoard), opened when training starts."""
         self.policies = PolicyKeeper(run.path, card, cfg, native_action_space(self.env), obs_dim, act_dim,
                                      cfg.seed + EVAL_SEED_OFFSET)
 
@@ -130,16 +133,14 @@ class Trainer:
     def _run(self, stop: StopRequest) -> TrainResult:
         s = self.setup
         resumed = self._restore()
-        evals = self.run_dir.eval_log()
-        train_log = self.run_dir.csv_log("train.csv", self._train_fields())
-        # Rows written after the checkpoint (or, resuming a run killed before its first checkpoint,
-        # any row at all) will be written again, identically: drop them first.
-        for csv_path in sorted(self.run_dir.path.glob("*.csv")):
-            rewind_csv(csv_path, self.step)
-        # Events of steps after the checkpoint will be logged again: TensorBoard drops the old ones from
-        # the step after it on (what was logged at the checkpoint's own step stays, as in the CSVs).
+        # Rows and events logged after the checkpoint will be logged again, identically: the sinks drop them
+        # first (TensorBoard from the step after it on: what was logged at the checkpoint's own step stays,
+        # as in the CSVs).
         had_events = any((self.run_dir.path / "tb").glob("events.*"))
-        tb = self.run_dir.tensorboard(purge_step=self.step + 1 if resumed or had_events else None)
+        self.csv = CsvSink(self.run_dir.path, {"eval": EVAL_FIELDS, "train": self._train_fields()}, self.step)
+        self.logger = RunLogger([self.csv, TensorBoardSink(self.run_dir.path / "tb",
+                                                           self.step + 1 if resumed or had_events else None,
+                                                           skip={"eval": ("episodes", "wall_s")})])
         self.run_dir.set_status("running", self.step)
         if self._obs is None:
             self._obs, _ = self.env.reset(seed=s.config.seed)
@@ -178,11 +179,10 @@ class Trainer:
             if self.step % s.config.eval_every == 0 or self.step == s.config.steps:
                 self.last_eval = evaluate(self.agent, self.eval_env, s.config.eval_episodes,
                                           s.config.seed + EVAL_SEED_OFFSET)
-                evals.append({"step": self.step, "return_mean": self.last_eval.mean,
-                              "return_std": self.last_eval.std,
-                              "length_mean": float(self.last_eval.lengths.mean()),
-                              "episodes": s.config.eval_episodes, "wall_s": round(time.perf_counter() - t_start, 3)})
-                tb.add_scalar("eval/return_mean", self.last_eval.mean, self.step)
+                self.logger.record("eval", self.step, {
+                    "return_mean": self.last_eval.mean, "return_std": self.last_eval.std,
+                    "length_mean": float(self.last_eval.lengths.mean()), "episodes": s.config.eval_episodes,
+                    "wall_s": round(time.perf_counter() - t_start, 3)})
                 self.policies.on_evaluation(self.agent, self.step, self.last_eval, self.step == s.config.steps)
                 postfix["eval"] = f"{self.last_eval.mean:.1f}"
                 if s.quiet:
@@ -191,8 +191,7 @@ class Trainer:
             for hook in s.hooks:
                 if self.step % hook.interval == 0:
                     scalars = hook.on_cycle(self._cycle_context())
-                    for name, value in scalars.items():
-                        tb.add_scalar(f"outer/{name}", value, self.step)
+                    self.logger.record("outer", self.step, scalars)
                     postfix.update({n: f"{x:.3g}" for n, x in scalars.items() if n in ("trigger", "version")})
                     if "S" in scalars:  # the anomaly score is undefined until the monitor has warmed up
                         postfix["S"] = f"{scalars['S']:.3g}" if math.isfinite(scalars["S"]) else "warming up"
@@ -201,14 +200,11 @@ class Trainer:
                 now = time.perf_counter()
                 sps = (self.step - step_window) / max(now - t_window, 1e-9)
                 t_window, step_window = now, self.step
-                row_out: dict[str, Any] = {"step": self.step, "episodes": self.episode, "steps_per_s": round(sps, 2),
-                           "train_return": self.recent_returns[-1] if self.recent_returns else ""}
+                row_out: dict[str, Any] = {"episodes": self.episode, "steps_per_s": round(sps, 2),
+                                           "train_return": self.recent_returns[-1] if self.recent_returns else ""}
                 row_out.update(sums.means())
-                train_log.widen(self._train_fields())  # a new program's factors bring new columns
-                train_log.append(row_out)
-                for k, v in row_out.items():
-                    if isinstance(v, float | int) and k != "step":
-                        tb.add_scalar(f"train/{k}", v, self.step)
+                self.csv.widen("train", self._train_fields())  # a new program's factors bring new columns
+                self.logger.record("train", self.step, row_out)
                 sums.clear()
                 self.run_dir.set_status(
                     "running", self.step, steps_per_s=round(sps, 2),
@@ -233,7 +229,7 @@ class Trainer:
             self._checkpoint(final_partial_episode=True)
         self.reward.close()
         self.run_dir.set_status("finished", self.step)
-        self.run_dir.close()
+        self.logger.close()
         return TrainResult(self.last_eval, self.step, time.perf_counter() - t_start)
 
     # ------------------------------------------------------------------------------------ helpers
@@ -302,7 +298,8 @@ class Trainer:
             self._checkpoint()
         self.policies.on_interrupt(self.agent, self.step)
         self.reward.close()
-        self.run_dir.close()
+        if self.logger is not None:
+            self.logger.close()
         raise Interrupted(signum, self.step, checkpointed=True)
 
     def _checkpoint(self, final_partial_episode: bool = False) -> None:
@@ -326,7 +323,8 @@ class Trainer:
                 "returns": self.last_eval.returns, "lengths": self.last_eval.lengths},
             "policies": self.policies.state_dict(),
         }
-        self.run_dir.flush_tensorboard()  # what was logged up to here survives a kill, as the CSV rows do
+        if self.logger is not None:
+            self.logger.flush()  # what was logged up to here survives a kill, as the CSV rows do
         save_checkpoint(self.run_dir.checkpoints, self.step, state)
         # Batches sampled ahead are not part of the state: dropping them here, as a resumed run does,
         # keeps the two identical.

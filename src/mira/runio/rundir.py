@@ -29,7 +29,6 @@ from typing import Any
 
 from mira.errors import UsageError
 from mira.runio.atomic import atomic_write_json
-from mira.runio.csvlog import CsvLog
 
 EVAL_FIELDS = ("step", "return_mean", "return_std", "length_mean", "episodes", "wall_s")
 
@@ -66,7 +65,6 @@ class RunDir:
         self.programs = path / "programs"
         self.interventions = path / "interventions"
         self.llm = path / "llm"
-        self._tb: Any = None
 
     def write_config(self, data: dict[str, Any]) -> None:
         atomic_write_json(self.path / "config.json", data)
@@ -81,31 +79,6 @@ class RunDir:
             {"status": status, "step": step, "message": message, "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
              **progress, **process_identity(), "heartbeat": round(time.time(), 3)},
         )
-
-    def eval_log(self) -> CsvLog:
-        return CsvLog(self.path / "eval.csv", EVAL_FIELDS)
-
-    def csv_log(self, name: str, fields: list[str]) -> CsvLog:
-        return CsvLog(self.path / name, fields)
-
-    def tensorboard(self, purge_step: int | None = None) -> Any:
-        """A TensorBoard writer; on resume, events logged after the checkpoint are purged."""
-        if self._tb is None:
-            from torch.utils.tensorboard import SummaryWriter
-
-            self._tb = SummaryWriter(str(self.path / "tb"), purge_step=purge_step, flush_secs=30)
-        return self._tb
-
-    def flush_tensorboard(self) -> None:
-        """Write out the TensorBoard events logged so far (a checkpoint does, so that a kill after it
-        loses none of them)."""
-        if self._tb is not None:
-            self._tb.flush()
-
-    def close(self) -> None:
-        if self._tb is not None:
-            self._tb.close()
-            self._tb = None
 
 
 def _start_time(pid: int) -> int | None:
