@@ -233,3 +233,19 @@ def test_a_prune_only_candidate_is_judged_not_lost(tmp_path: Path, states: tuple
     assert not decision.failed
     (record,) = json.loads((tmp_path / "iv" / "candidates.json").read_text())
     assert "efficacy" in record["verdicts"] and "r_stable" not in [f["name"] for f in record["program"]["factors"]]
+
+
+def test_a_structural_intervention_records_no_rule_hypotheses(tmp_path: Path,
+                                                               states: tuple[np.ndarray, np.ndarray]) -> None:
+    obs, actions = states
+    backend = make_backend(_script(tmp_path, [_candidate_reply("x_velocity")]), audit_dir=tmp_path)
+    reframer = Reframer(SRRConfig(permutations=100), CARD, backend, action_dim=6)
+    ev = _structural_evidence()
+    ev.d = {**ev.d, "tpd": 3.0, "peg": -3.0}  # readings the monitor's rules would turn into hypotheses
+
+    def proxy(program, s):  # type: ignore[no-untyped-def]
+        return CARD.feature_values(s)["x_velocity"]
+
+    reframer.reframe(tmp_path / "iv", example_program("halfcheetah", 0), ev, obs,
+                     CARD.feature_values(obs)["x_velocity"], obs, actions, proxy, seed=0)
+    assert json.loads((tmp_path / "iv" / "evidence.json").read_text())["hypotheses"] == []

@@ -100,7 +100,10 @@ class Reframer:
         cfg = self.config
         folder.mkdir(parents=True, exist_ok=True)
         poor = evidence.poor_return
-        hypotheses = rule_hypotheses(evidence.d, poor) if evidence.guided else []
+        # The rules read the monitor's diagnostics: they say something only where the monitor asked. For a
+        # structural trigger the returns' evidence is the reason, and readings of the dynamics beside it
+        # would contradict it (in the prompt and in the run's record alike).
+        hypotheses = rule_hypotheses(evidence.d, poor) if evidence.guided and evidence.cause == "anomaly" else []
         atomic_write_json(folder / "evidence.json", {**evidence.as_dict(),
                                                      "hypotheses": [h.as_dict() for h in hypotheses]})
         request = build_srr_request(self.card, program, evidence, hypotheses, cfg.max_candidates, cfg.operators,
