@@ -5,7 +5,7 @@ For each flaw and seed of each source (a folder laid out as ``bench/flawed.py``'
 exchanges of the ``mira`` run, whether the first reply was admitted, the replies sent back with the
 checker's errors, whether an edit was installed, and the final return (mean evaluation return over the
 final 10% of the budget). Per flaw and engineer: mean and [min, max] over seeds (fewer than 5 seeds: no
-interval), and how many seeds repaired the flaw (final return at least 70% of good-program ``hars``,
+interval), how many seeds repaired the flaw (final return at least 70% of good-program ``hars``,
 the flawed-program benchmark's criterion).
 
     python bench/llm/report.py --llm bench/archive/llm_hc --offline bench/archive/flawed_100k --steps 100000
@@ -51,7 +51,11 @@ def run_row(run: Path, steps: int) -> dict[str, Any] | None:
     for folder in sorted((run / "interventions").glob("*")):
         decision = json.loads((folder / "decision.json").read_text()) if (folder / "decision.json").is_file() else {}
         attempts = json.loads((folder / "attempts.json").read_text()) if (folder / "attempts.json").is_file() else None
-        interventions.append({"folder": folder.name, "accepted": bool(decision.get("accepted")),
+        interventions.append({"step": int(folder.name.split("step")[-1]) if "step" in folder.name else None,
+                              "operators": decision.get("operators") or [],
+                              "reason": str(decision.get("reason", "")),
+                              "accepted": bool(decision.get("accepted")),
+                              "failed": bool(decision.get("failed")),
                               "turns": len(attempts) if attempts else 1,
                               "first_admitted": attempts[0]["admitted"] if attempts else None})
     first = [verdicts.get(e["id"], {}).get("admitted") for e in exchanges if
@@ -64,7 +68,8 @@ def run_row(run: Path, steps: int) -> dict[str, Any] | None:
         "first_asked": len(first),
         "sent_back": sum(1 for e in exchanges if verdicts.get(e["id"], {}).get("admitted") is False),
         "installed": sum(i["accepted"] for i in interventions),
-        "interventions": len(interventions),
+        "failed": sum(i["failed"] for i in interventions),
+        "interventions": interventions,
         "source": (config.get("environment") or {}).get("source"),
     }
 
@@ -87,8 +92,8 @@ def _summary(values: list[float]) -> str:
 
 def table(sources: dict[str, dict[tuple[str, int], dict[str, Any]]], seeds: list[int]) -> str:
     lines = ["| flaw | engineer | seeds | final return, mean [min, max] | repaired (≥ 70% of good hars) | "
-             "SRR exchanges | first reply admitted | replies sent back | edits installed |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "SRR exchanges | first reply admitted | replies sent back | edits installed | interventions failed |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for flaw in FLAWS:
         for label, rows in sources.items():
             got = [rows[(flaw, s)] for s in seeds if (flaw, s) in rows]
@@ -96,12 +101,14 @@ def table(sources: dict[str, dict[tuple[str, int], dict[str, Any]]], seeds: list
                 continue
             finals = [r["final"] for r in got]
             repaired = sum(f >= REPAIRED * GOOD_HARS for f in finals)
+            installed = sum(r["installed"] for r in got)
+            failed = sum(r["failed"] for r in got)
             if label == "offline":
-                llm_cols = "— | — | — | " + str(sum(r["installed"] for r in got))
+                llm_cols = f"— | — | — | {installed} | {failed}"
             else:
                 llm_cols = (f"{sum(r['exchanges'] for r in got)} | {sum(r['first_admitted'] for r in got)} of "
                             f"{sum(r['first_asked'] for r in got)} | {sum(r['sent_back'] for r in got)} | "
-                            f"{sum(r['installed'] for r in got)}")
+                            f"{installed} | {failed}")
             lines.append(f"| {flaw} | {label} | {len(got)} | {_summary(finals)} | {repaired} of {len(got)} | "
                          f"{llm_cols} |")
     return "\n".join(lines)
@@ -123,6 +130,18 @@ def main(argv: list[str] | None = None) -> int:
             offline.setdefault(key, row)
     llm = collect(args.llm, args.task, args.steps, seeds)
     print(table({"offline": offline, "LLM": llm}, seeds))
+    print("\nPer run (final return: offline engineer → LLM; the LLM run's interventions):")
+    for flaw in FLAWS:
+        for seed in seeds:
+            if (flaw, seed) not in llm:
+                continue
+            off = offline.get((flaw, seed))
+            ivs = "; ".join(
+                f"{i['step']}: " + ("installed " + "+".join(i["operators"]) if i["accepted"] else
+                                    "failed (" + i["reason"][:60] + ")" if i["failed"] else "backed off")
+                for i in llm[(flaw, seed)]["interventions"])
+            before = "—" if off is None else f"{off['final']:.0f}"
+            print(f"  {flaw} s{seed}: {before} → {llm[(flaw, seed)]['final']:.0f} ({ivs or 'no intervention'})")
     commits = sorted({str((r["source"] or {}).get("commit", "unrecorded"))[:7] if isinstance(r["source"], dict)
                       else str(r["source"])[:7] for r in [*offline.values(), *llm.values()]})
     print(f"\nRuns' recorded code: {', '.join(commits)}.")
