@@ -8,6 +8,7 @@ of the environment's own dense reward.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -30,7 +31,9 @@ class EvalResult:
         return float(self.returns.std())
 
 
-def evaluate(agent: Agent, env: EpisodicRewardWrapper, episodes: int, seed_base: int) -> EvalResult:
+def evaluate(agent: Agent | Any, env: EpisodicRewardWrapper, episodes: int, seed_base: int) -> EvalResult:
+    """``episodes`` deterministic episodes of anything with ``act(obs, deterministic=True)`` (an agent
+    while training, a loaded policy file afterwards), from seeds ``seed_base + k``."""
     returns, lengths = [], []
     for k in range(episodes):
         obs, _ = env.reset(seed=seed_base + k)

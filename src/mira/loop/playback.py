@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from mira.agents.policy_file import Policy
+from mira.loop.evaluation import evaluate
 from mira.tasks.card import TaskCard, card_from_dict
 from mira.tasks.envs import make_env
 
@@ -77,19 +78,9 @@ def evaluate_policy(policy: Policy, episodes: int | None = None, seed: int | Non
         # Recording sits under the episodic-reward wrapper: what the episodes return is unchanged.
         env.env = gym.wrappers.RecordVideo(env.env, str(folder), episode_trigger=lambda _: True, name_prefix=prefix,
                                            disable_logger=True)
-    returns, lengths = [], []
     try:
-        for k in range(episodes):
-            obs, _ = env.reset(seed=seed_base + k)
-            total, length, done = 0.0, 0, False
-            while not done:
-                obs, _, terminated, truncated, info = env.step(policy.act(obs, deterministic=True))
-                total += info["dense_reward"]
-                length += 1
-                done = terminated or truncated
-            returns.append(total)
-            lengths.append(length)
+        result = evaluate(policy, env, episodes, seed_base)  # the episodes a run's evaluations play
     finally:
         env.close()  # writes the last video
     videos = sorted(Path(video_dir).glob(f"{prefix}-episode-*.mp4")) if video_dir is not None else []
-    return PlaybackResult(np.asarray(returns), np.asarray(lengths), [seed_base + k for k in range(episodes)], videos)
+    return PlaybackResult(result.returns, result.lengths, [seed_base + k for k in range(episodes)], videos)
