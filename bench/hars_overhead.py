@@ -30,6 +30,7 @@ from mira.agents.base import AgentConfig
 from mira.factors.examples import example_program
 from mira.replay import ReplayBuffer
 from mira.rewards.base import RewardContext
+from mira.shaping.columns import RECOMPUTE_CHUNK
 from mira.shaping.config import HarsConfig
 from mira.shaping.factors import ProgramFactorSource
 from mira.shaping.source import HarsReward
@@ -62,8 +63,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--transitions", type=int, default=100_000, help="buffer rows for the step timing")
     p.add_argument("--recompute-rows", type=int, default=1_000_000, help="0: skip the recompute timing")
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--joint", type=int, default=1)
-    p.add_argument("--hars", default="{}", help="HarsConfig overrides as JSON, e.g. '{\"tce_every\": 1}'")
+    p.add_argument("--hars", default="{}", help="HarsConfig overrides as JSON, e.g. '{\"update_every\": 1}'")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     agent = make_agent(args.algo, obs_dim, act_dim, cfg, device)
 
     buf = ReplayBuffer(args.transitions, obs_dim, act_dim)
-    hars_cfg = HarsConfig(joint=bool(args.joint), **json.loads(args.hars))
+    hars_cfg = HarsConfig(**json.loads(args.hars))
     hars = HarsReward(source, hars_cfg)
     hars.bind(RewardContext(card, obs_dim, act_dim, cfg.gamma, device, buf, 0, Path(".")))
     # on_transition: the per-environment-step cost
@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         hars.on_transition(row)
         t_on.append(time.perf_counter() - t0)
     _fill(buf, args.transitions, rng)
-    hars.columns.recompute_all(hars.config.recompute_chunk)
+    hars.columns.recompute_all(RECOMPUTE_CHUNK)
 
     def sparse_step() -> float:
         batch = buf.sample(args.batch_size, rng)
@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         hars_big = HarsReward(ProgramFactorSource(example_program(args.task), card), hars_cfg)
         hars_big.bind(RewardContext(card, obs_dim, act_dim, cfg.gamma, device, big, 0, Path(".")))
         t0 = time.perf_counter()
-        hars_big.columns.recompute_all(hars_big.config.recompute_chunk)
+        hars_big.columns.recompute_all(RECOMPUTE_CHUNK)
         t_re = time.perf_counter() - t0
 
     out = {

@@ -2,7 +2,7 @@
 
 Builds a HARS source over a synthetic 100k-row HalfCheetah buffer (the task's offline program, Table 1
 networks, batch 256), trains it on every batch (``update_every = 1``) and times the two halves of a
-training step: ``relabel`` (the forward with a graph over [s; s′] and, on every ``tce_every``-th
+training step: ``relabel`` (the forward with a graph over [s; s′] and, on every ``TCE_EVERY``-th
 step, the TCE's context rows) and ``update`` (losses, backward, Adam, figures). A stand-in critic
 gradient is put on the shaped reward so the joint term is exercised. ``--profile`` prints
 torch.profiler's table of the ops behind it (counts per step and time), which is where to look
@@ -29,6 +29,7 @@ from hars_overhead import _fill  # the same synthetic buffer (run as a script, b
 from mira.factors.examples import example_program
 from mira.replay import ReplayBuffer
 from mira.rewards.base import RewardContext
+from mira.shaping.columns import RECOMPUTE_CHUNK
 from mira.shaping.config import HarsConfig
 from mira.shaping.factors import ProgramFactorSource
 from mira.shaping.source import HarsReward
@@ -58,7 +59,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     cfg = HarsConfig(**{**json.loads(args.hars), "update_every": 1})
     hars = HarsReward(ProgramFactorSource(example_program(args.task), card), cfg)
     hars.bind(RewardContext(card, obs_dim, act_dim, 0.99, torch.device("cpu"), buf, 0, Path(".")))
-    hars.columns.recompute_all(hars.config.recompute_chunk)
+    hars.columns.recompute_all(RECOMPUTE_CHUNK)
     critic_grad = torch.linspace(-1.0, 1.0, args.batch_size) * 1e-2
 
     def step(i: int) -> tuple[float, float]:

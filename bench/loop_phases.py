@@ -4,7 +4,7 @@
     python bench/loop_phases.py --methods sparse,hars,mira --algo ddpg --steps 6000
     python bench/loop_phases.py --methods hars --one-batch-at-a-time   # HARS shaping batch by batch
     python bench/loop_phases.py --set hars.update_every=16            # any configuration override
-    python bench/loop_phases.py --methods sparse,hars,hars+hars.train_in_background=false   # A/B
+    python bench/loop_phases.py --methods sparse,hars,hars+hars.update_every=1   # A/B
 
 Each method runs ``mira train`` in a fresh subprocess (learning starts at ``--learning-starts``; no
 evaluation or checkpoint inside the run) with thin timers around the agent's ``update`` and ``act``,

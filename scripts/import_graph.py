@@ -34,7 +34,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("core", ("mira.replay", "mira.tasks", "mira.agents", "mira.rewards", "mira.loop")),
     ("components", ("mira.factors", "mira.llm", "mira.engineer", "mira.shaping", "mira.mcm", "mira.srr",
                     "mira.baselines", "mira.examples")),
-    ("methods", ("mira.outer", "mira.config", "mira.methods", "mira.explain", "mira.train_cli")),
+    ("methods", ("mira.outer", "mira.config", "mira.config_history", "mira.methods", "mira.explain", "mira.train_cli")),
     ("experiments", ("mira.experiments",)),
     ("cli", ("mira.cli", "mira.__main__", "mira.api")),
 ]

@@ -18,14 +18,11 @@ from mira.baselines.lare import (
     lare_messages,
     lare_program,
 )
-from mira.config import TrainConfig, from_dict, to_dict
 from mira.engineer.offline_lsfs import synthesize
 from mira.errors import UsageError
 from mira.llm.base import LLMReply, LLMRequest
 from mira.llm.config import LLMConfig
 from mira.tasks.card import load_task
-
-NO_SANDBOX = LaReConfig(sandbox=False)
 
 
 class Refuses:
@@ -48,7 +45,7 @@ def _good_reply(card_name: str = "halfcheetah", action_dim: int = 6) -> str:
 
 def test_offline_engineer_gives_its_lsfs_program_and_it_is_saved(tmp_path: Path) -> None:
     card = load_task("halfcheetah")
-    program, origin = lare_program(card, tmp_path, LLMConfig(), NO_SANDBOX)
+    program, origin = lare_program(card, tmp_path, LLMConfig())
     assert program.names == ["r_vel", "r_upright", "r_stable", "r_ctrl"]
     assert "offline" in origin
     assert (tmp_path / PROGRAM_FILE).is_file()
@@ -57,7 +54,7 @@ def test_offline_engineer_gives_its_lsfs_program_and_it_is_saved(tmp_path: Path)
     exchanges = [json.loads(line) for line in (tmp_path / "llm" / "exchanges.jsonl").read_text().splitlines()]
     assert exchanges[0]["purpose"] == "lare"
     # A resumed run reads the saved program and never asks again.
-    again, origin2 = lare_program(card, tmp_path, LLMConfig(), NO_SANDBOX, backend=Refuses())
+    again, origin2 = lare_program(card, tmp_path, LLMConfig(), backend=Refuses())
     assert again == program and "saved" in origin2
 
 
@@ -67,7 +64,7 @@ def test_rejected_reply_is_shown_back_and_the_retry_is_used(tmp_path: Path) -> N
     script = tmp_path / "replies.jsonl"
     script.write_text(json.dumps({"content": json.dumps(bad)}) + "\n" + json.dumps({"content": _good_reply()}) + "\n")
     run = tmp_path / "run"
-    program, _ = lare_program(load_task("halfcheetah"), run, LLMConfig(backend=f"script:{script}"), NO_SANDBOX)
+    program, _ = lare_program(load_task("halfcheetah"), run, LLMConfig(backend=f"script:{script}"))
     assert "r_vel" in program.names
     attempts = json.loads((run / SYNTHESIS_FILE).read_text())["attempts"]
     assert [a["ok"] for a in attempts] == [False, True]
@@ -81,9 +78,16 @@ def test_rejected_reply_is_shown_back_and_the_retry_is_used(tmp_path: Path) -> N
 def test_no_admissible_program_is_a_usage_error(tmp_path: Path) -> None:
     script = tmp_path / "replies.jsonl"
     script.write_text(json.dumps({"content": "I cannot help with that."}) + "\n")
-    with pytest.raises(UsageError, match="no admissible"):
-        lare_program(load_task("halfcheetah"), tmp_path / "run", LLMConfig(backend=f"script:{script}"),
-                     LaReConfig(sandbox=False, max_attempts=1))
+    with pytest.raises(UsageError, match=r"no admissible .* after 1 request\(s\)"):
+        lare_program(load_task("halfcheetah"), tmp_path / "run", LLMConfig(backend=f"script:{script}", followups=0))
+
+
+def test_requests_are_the_runs_followups_plus_one(tmp_path: Path) -> None:
+    """LaRe asks at most ``llm.followups + 1`` times (3 at the default 2 follow-ups)."""
+    script = tmp_path / "replies.jsonl"
+    script.write_text((json.dumps({"content": "I cannot help with that."}) + "\n") * 3)
+    with pytest.raises(UsageError, match=r"after 3 request\(s\)"):
+        lare_program(load_task("halfcheetah"), tmp_path / "run", LLMConfig(backend=f"script:{script}"))
 
 
 def test_prompt_is_lsfs_plus_the_latent_reward_section() -> None:
@@ -97,7 +101,7 @@ def test_prompt_is_lsfs_plus_the_latent_reward_section() -> None:
 def test_program_factors_feed_the_decoder(tmp_path: Path) -> None:
     card = load_task("humanoidstandup")
     card.bind(348)
-    program, _ = lare_program(card, tmp_path, LLMConfig(), NO_SANDBOX)
+    program, _ = lare_program(card, tmp_path, LLMConfig())
     factors = ProgramFactors(program, card)
     rng = np.random.default_rng(0)
     obs, act = rng.standard_normal((7, 348)), rng.uniform(-1, 1, (7, 17))
@@ -107,10 +111,3 @@ def test_program_factors_feed_the_decoder(tmp_path: Path) -> None:
     source = LaReReward(factors, LaReConfig())
     assert source.describe()["factors"] == factors.names
 
-
-def test_train_config_round_trips_with_baselines_section() -> None:
-    cfg = TrainConfig(method="vib")
-    cfg.baselines.vib.hidden = (32, 32)
-    cfg.baselines.lare.loss = "full"
-    back = from_dict(TrainConfig, json.loads(json.dumps(to_dict(cfg))))
-    assert back == cfg and back.baselines.vib.hidden == (32, 32)

@@ -125,7 +125,7 @@ def _reframe(tmp_path: Path, task: str, hars: HarsReward, held: dict[str, np.nda
     def proxy(candidate, states):  # type: ignore[no-untyped-def]
         return hars.proxy_potential(ProgramFactorSource(candidate, card), states).numpy()
 
-    reframer = Reframer(SRRConfig(permutations=500), card, backend, action_dim=int(sandbox_actions.shape[1]))
+    reframer = Reframer(SRRConfig(), card, backend, action_dim=int(sandbox_actions.shape[1]), permutations=500)
     decision = reframer.reframe(tmp_path / "iv", program, evidence, held["obs"], held["value"], sandbox_obs,
                                 sandbox_actions, proxy, seed=0)
     exchanges = (tmp_path / "llm" / "exchanges.jsonl").read_text()

@@ -27,8 +27,8 @@ def _run(args: list[str]) -> subprocess.CompletedProcess[str]:
         (["train", "--resume", "{tmp}/nothing"], "not a run directory"),
         (["train", "--task", "{tmp}/bad.toml", "--out", "{tmp}/o"], "does not parse"),
         (["train", "--out", "{tmp}/o", "--set", "hars.update_every=x"], "expected a int like 8"),
-        (["train", "--out", "{tmp}/o", "--set", "hars.train_in_background=yes"], "expected bool or null"),
-        (["train", "--out", "{tmp}/o", "--set", "hars.max_grad_norm=true"], "expected float or null"),
+        (["train", "--out", "{tmp}/o", "--set", "hars.shaping_weight=yes"], "expected float or null"),
+        (["train", "--out", "{tmp}/o", "--set", "hars.shaping_weight=true"], "expected float or null"),
         (["train", "--out", "{tmp}/o", "--set", "hars.nope=1"], "no field 'nope'"),
     ],
 )

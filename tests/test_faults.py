@@ -28,14 +28,19 @@ STEPS = "3000"
 ARGS = ["train", "--task", "halfcheetah", "--method", "mira-no-mcm", "--steps", STEPS, "--seed", "1",
         "--learning-starts", "300", "--batch-size", "32", "--hidden", "16,16", "--eval-every", "400",
         "--eval-episodes", "1", "--max-episode-steps", "100", "--checkpoint-every", "100", "--log-every", "200",
-        "--threads", "1", "--quiet", "--set", "mira.mcm.delta_t=400", "--set", "mira.periodic_cycles=1",
-        "--set", "mira.holdout_episodes=1", "--set", "mira.srr.permutations=100"]
+        "--threads", "1", "--quiet", "--set", "mira.mcm.delta_t=400", "--set", "mira.holdout_episodes=1"]
+# `python -m mira.cli`, with two of the outer loop's constants patched so that the runs are short: the no-MCM
+# ablation calls SRR every cycle (not every 10th) and the efficacy tests run 100 permutations (not 1000).
+MIRA_CLI = ["-c", "; ".join([
+    "import os, sys", "import mira.outer.loop, mira.srr.reframe",
+    "mira.outer.loop.PERIODIC_CYCLES = 1", "mira.srr.reframe.PERMUTATIONS = 100",
+    "os.environ.setdefault('PYTHONUNBUFFERED', '1')", "from mira.cli import main", "sys.exit(main(sys.argv[1:]))"])]
 
 
 def _run(args: list[str], failpoints: str = "", kill_after: float | None = None,
          cwd: Path | None = None) -> int:
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MIRA_FAILPOINTS": failpoints}
-    proc = subprocess.Popen([sys.executable, "-m", "mira.cli", *args], env=env, stdout=subprocess.DEVNULL,
+    proc = subprocess.Popen([sys.executable, *MIRA_CLI, *args], env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, cwd=cwd)
     if kill_after is not None:
         try:
@@ -62,7 +67,7 @@ KILL_ARGS = [("6000" if a == STEPS else a) for a in ARGS]
 def _timed_reference(out: Path) -> tuple[float, float]:
     """Run the reference to completion; return (start-up seconds, training seconds) as this machine measures them."""
     started = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "mira.cli", *KILL_ARGS, "--out", str(out)], capture_output=True,
+    proc = subprocess.run([sys.executable, *MIRA_CLI, *KILL_ARGS, "--out", str(out)], capture_output=True,
                           text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
     wall = time.monotonic() - started
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -141,7 +141,7 @@ def test_srr_candidate_with_unknown_feature_is_sent_back_and_the_corrected_one_i
     backend = make_backend(_script(tmp_path, [_candidate_reply("forward_speed"), _candidate_reply("x_velocity")]),
                            audit_dir=tmp_path)
     values = CARD.feature_values(obs)["x_velocity"]
-    reframer = Reframer(SRRConfig(permutations=100), CARD, backend, action_dim=6, followups=1)
+    reframer = Reframer(SRRConfig(), CARD, backend, action_dim=6, followups=1, permutations=100)
 
     def proxy(program, s):  # type: ignore[no-untyped-def]
         return CARD.feature_values(s)["x_velocity"]
@@ -161,7 +161,7 @@ def test_the_next_srr_prompt_lists_the_candidates_refused_last_time(
         tmp_path: Path, states: tuple[np.ndarray, np.ndarray]) -> None:
     obs, actions = states
     backend = make_backend(_script(tmp_path, [_candidate_reply("forward_speed")] * 2), audit_dir=tmp_path)
-    reframer = Reframer(SRRConfig(permutations=100), CARD, backend, action_dim=6, followups=0)
+    reframer = Reframer(SRRConfig(), CARD, backend, action_dim=6, followups=0, permutations=100)
     values = CARD.feature_values(obs)["x_velocity"]
 
     def proxy(program, s):  # type: ignore[no-untyped-def]
@@ -222,7 +222,7 @@ def test_a_prune_only_candidate_is_judged_not_lost(tmp_path: Path, states: tuple
     prune = {"candidates": [{"edits": [{"operator": "Prune", "targets": ["r_stable"], "params": {},
                                         "justification": "inert"}], "updated_factors": []}]}
     backend = make_backend(_script(tmp_path, [json.dumps(prune)]), audit_dir=tmp_path)
-    reframer = Reframer(SRRConfig(permutations=100), CARD, backend, action_dim=6, followups=0)
+    reframer = Reframer(SRRConfig(), CARD, backend, action_dim=6, followups=0, permutations=100)
     values = CARD.feature_values(obs)["x_velocity"]
 
     def proxy(program, s):  # type: ignore[no-untyped-def]
@@ -239,7 +239,7 @@ def test_a_structural_intervention_records_no_rule_hypotheses(tmp_path: Path,
                                                                states: tuple[np.ndarray, np.ndarray]) -> None:
     obs, actions = states
     backend = make_backend(_script(tmp_path, [_candidate_reply("x_velocity")]), audit_dir=tmp_path)
-    reframer = Reframer(SRRConfig(permutations=100), CARD, backend, action_dim=6)
+    reframer = Reframer(SRRConfig(), CARD, backend, action_dim=6, permutations=100)
     ev = _structural_evidence()
     ev.d = {**ev.d, "tpd": 3.0, "peg": -3.0}  # readings the monitor's rules would turn into hypotheses
 

@@ -13,6 +13,7 @@ import torch
 
 from mira.mcm import MCMConfig, MCMResult, MetacognitiveMonitor, row_fields
 from mira.mcm.config import TABLE1_DELTA_T
+from mira.mcm.monitor import TOP_M
 from mira.mcm.records import CycleSnapshot, is_improvement
 
 # Typical raw levels and cycle-to-cycle noise of [PEG, TPD, PVC, FAP, RPE].
@@ -80,7 +81,7 @@ def test_persistent_step_triggers_once_then_cooldown() -> None:
     assert hit.contributors[0].metric == "pvc"
     assert hit.contributors[0].gradient > 0
     assert hit.contributors[0].reading == "potential decoupled from return"
-    assert len(hit.contributors) == mon.config.top_m
+    assert len(hit.contributors) == TOP_M
     assert any(v != 0.0 for v in hit.gradient.values())
     json.dumps(hit.evidence())
     cool = res[152 : 152 + mon.config.k_cool]
@@ -124,15 +125,15 @@ def test_buffer_insertion_is_gated_by_return() -> None:
         assert r.inserted == (r.smoothed_return > r.baseline)
 
 
-def test_gate_on_anomaly_option() -> None:
+def test_insertion_is_gated_by_return_only_even_while_anomalous() -> None:
+    """The paper's gate: a cycle whose return beats the baseline enters the buffer, anomalous or not."""
     xs = stream(0, 200, step_at=150)[0]
     rising = [float(k) for k in range(200)]  # the return keeps beating its baseline
-    for paper in (True, False):
-        res = diagnose_stream(MetacognitiveMonitor(MCMConfig(insert_when_anomalous=paper)), xs, rising)
-        assert any(r.trigger for r in res)
-        while_anomalous = [r.inserted for prev, r in itertools.pairwise(res) if prev.anomalous]
-        assert while_anomalous
-        assert all(while_anomalous) if paper else not any(while_anomalous)
+    res = diagnose_stream(MetacognitiveMonitor(), xs, rising)
+    assert any(r.trigger for r in res)
+    while_anomalous = [r.inserted for prev, r in itertools.pairwise(res) if prev.anomalous]
+    assert while_anomalous
+    assert all(while_anomalous)
 
 
 def test_backoff_and_edit_hooks() -> None:
@@ -274,22 +275,37 @@ def test_load_rejects_unknown_version() -> None:
         MetacognitiveMonitor().load_state_dict(state)
 
 
-@pytest.mark.parametrize("ignore", [True, False])
-def test_a_persistent_improvement_is_logged_as_benign_not_triggered(ignore: bool) -> None:
+def test_a_persistent_improvement_is_logged_as_benign_not_triggered() -> None:
     """PVC jumps *up* (Φ suddenly tracks return better): anomalous, but not a pathology to reframe."""
-    mon = MetacognitiveMonitor(MCMConfig(ignore_improvements=ignore))
+    mon = MetacognitiveMonitor()
     res = diagnose_stream(mon, *stream(0, 200, step_at=150, mag=-5.0))
     late = res[150:]
-    if ignore:
-        # The step is seen at once (151) and logged as benign; a later trigger, if any, must be led by
-        # something else (here noise in PEG can still lead one, as in any healthy stream).
-        assert not late[1].trigger and late[1].benign
-        assert all(not is_improvement(r.contributors[0].metric, r.contributors[0].gradient)
-                   for r in late if r.trigger)
-        flagged = [r for r in late if r.benign]
-        assert flagged and all(r.contributors[0].metric in ("pvc", "rpe") for r in flagged)
-        assert flagged[0].contributors[0].gradient < 0  # the healthy density lies toward a lower PVC
-        assert flagged[0].as_row()["benign"] == 1 and not flagged[0].anomalous
-    else:
-        assert [r.cycle for r in late if r.trigger] == [151]
-        assert not any(r.benign for r in res)
+    # The step is seen at once (151) and logged as benign; a later trigger, if any, must be led by
+    # something else (here noise in PEG can still lead one, as in any healthy stream).
+    assert not late[1].trigger and late[1].benign
+    assert all(not is_improvement(r.contributors[0].metric, r.contributors[0].gradient)
+               for r in late if r.trigger)
+    flagged = [r for r in late if r.benign]
+    assert flagged and all(r.contributors[0].metric in ("pvc", "rpe") for r in flagged)
+    assert flagged[0].contributors[0].gradient < 0  # the healthy density lies toward a lower PVC
+    assert flagged[0].as_row()["benign"] == 1 and not flagged[0].anomalous
+
+
+def test_rpe_uses_the_discount_the_monitor_is_given_and_a_checkpoint_keeps_it() -> None:
+    """d_RPE's target ``r + γ Φ(s')`` uses the γ passed in (a run passes the agent's; Table 1's 0.99 alone)."""
+    from mira.mcm import metrics
+
+    s = _snapshots(0, 1)[0]
+    assert MetacognitiveMonitor().gamma == 0.99
+    for gamma in (0.99, 0.9):
+        expected = metrics.d_rpe(s.phi_s, s.r_ext, s.phi_next, gamma, s.terminal)
+        assert MetacognitiveMonitor(gamma=gamma).raw_metrics(s)[4] == expected
+    resumed = MetacognitiveMonitor()
+    resumed.load_state_dict(MetacognitiveMonitor(gamma=0.9).state_dict())
+    assert resumed.gamma == 0.9
+
+
+def test_old_checkpoint_config_with_removed_fields_loads() -> None:
+    """A checkpoint written when the monitor's constants were still fields loads (unknown keys ignored)."""
+    old = {**MCMConfig().to_dict(), "gamma": 0.99, "ema_beta": 0.3, "ignore_improvements": True}
+    assert MCMConfig.from_dict(old) == MCMConfig()

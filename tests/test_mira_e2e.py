@@ -3,15 +3,29 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import pytest
 
+import mira.outer.loop
 from mira.cli import main
 from mira.runio.csvlog import read_csv
 
-FAST_MIRA = ["--set", "mira.mcm.delta_t=400", "--set", "mira.holdout_episodes=1", "--set", "mira.periodic_cycles=1",
+FAST_MIRA = ["--set", "mira.mcm.delta_t=400", "--set", "mira.holdout_episodes=1",
              "--set", "mira.mcm.k_warm=1", "--set", "mira.mcm.buffer_min=1", "--set", "mira.mcm.min_scores=1"]
+
+
+# The no-MCM ablation calls SRR every cycle, so that two 400-step cycles see two interventions: patched in this
+# process (the fixture below) and in a `python -m mira.cli` of its own (PERIODIC_MIRA_CLI).
+PERIODIC_MIRA_CLI = [sys.executable, "-c", "; ".join([
+    "import os, sys", "import mira.outer.loop", "mira.outer.loop.PERIODIC_CYCLES = 1",
+    "os.environ.setdefault('PYTHONUNBUFFERED', '1')", "from mira.cli import main", "sys.exit(main(sys.argv[1:]))"])]
+
+
+@pytest.fixture(autouse=True)
+def _periodic_srr_every_cycle(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(mira.outer.loop, "PERIODIC_CYCLES", 1)
 
 
 def _train(out: Path, fast: list[str], method: str, *extra: str, steps: int = 800) -> int:
@@ -80,15 +94,15 @@ def test_diagnosis_only_on_humanoidstandup_logs_every_cycle_and_never_edits(tmp_
 
 
 @pytest.mark.slow
-def test_interventions_are_reported_as_they_happen(tmp_path: Path, fast_train_args: list[str],
-                                                   mira_cmd: list[str]) -> None:
+def test_interventions_are_reported_as_they_happen(tmp_path: Path, fast_train_args: list[str]) -> None:
     """Each verified candidate and each decision is one line of the run's output (here --quiet, as in a log
     file), with its figures; no progress bar is redrawn into it."""
     import subprocess
 
     run = tmp_path / "run"
-    proc = subprocess.run([*mira_cmd, "train", "--task", "halfcheetah", "--method", "mira-no-mcm", "--steps", "800",
-                           "--seed", "0", "--out", str(run), "--quiet", *fast_train_args, *FAST_MIRA],
+    proc = subprocess.run([*PERIODIC_MIRA_CLI, "train", "--task", "halfcheetah", "--method", "mira-no-mcm",
+                           "--steps", "800", "--seed", "0", "--out", str(run), "--quiet", *fast_train_args,
+                           *FAST_MIRA],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout + proc.stderr

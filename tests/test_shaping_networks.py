@@ -70,21 +70,20 @@ def test_fast_forward_equals_the_literal_definition(k: int, b: int, seed: int, m
 
 
 @settings(max_examples=25, deadline=None)
-@given(k=st.integers(0, 12), b=st.integers(1, 9), seed=st.integers(0, 2**16), state_proj=st.booleans(),
-       unit=st.floats(0.5, 100.0), clip=st.floats(0.5, 10.0))
-def test_frozen_potential_equals_the_modules(k: int, b: int, seed: int, state_proj: bool, unit: float,
-                                             clip: float) -> None:
+@given(k=st.integers(0, 12), b=st.integers(1, 9), seed=st.integers(0, 2**16), unit=st.floats(0.5, 100.0),
+       clip=st.floats(0.5, 10.0))
+def test_frozen_potential_equals_the_modules(k: int, b: int, seed: int, unit: float, clip: float) -> None:
     """The shaping path's Φ (W_2 folded into the VPM, normalisation as a multiply-add, σ_R folded into
     the output) is ``unit · vpm(fab(x, o))`` of the clipped, normalised inputs for any number of factors."""
     fab = _fab(seed % 7).double()
-    vpm = ValuePotential(16, OBS, hidden=16, state_proj=state_proj, state_proj_dim=4).double()
+    vpm = ValuePotential(16, hidden=16).double()
     f, obs, ids, meta = (t.double() * 3.0 if i < 2 else t.double() for i, t in enumerate(_inputs(b, k, seed)))
     gen = torch.Generator().manual_seed(seed + 2)
     f_shift, o_shift = torch.randn(k, generator=gen, dtype=torch.float64), torch.randn(OBS, generator=gen,
                                                                                           dtype=torch.float64)
     f_inv, o_inv = (torch.rand(n, generator=gen, dtype=torch.float64) + 0.5 for n in (k, OBS))
     x, o = (f * f_inv + f_shift).clamp(-clip, clip), (obs * o_inv + o_shift).clamp(-clip, clip)
-    expected = vpm(fab(x, o, ids, meta)[0], o) * unit
+    expected = vpm(fab(x, o, ids, meta)[0]) * unit
     frozen = FrozenPotential(fab, vpm, ids, meta, f_shift=f_shift, f_inv=f_inv, o_shift=o_shift, o_inv=o_inv,
                              clip=clip, unit=unit)
     torch.testing.assert_close(frozen(f, obs), expected, rtol=1e-9, atol=1e-9)

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mira.shaping import objective
 from mira.shaping.config import HarsConfig
 from mira.shaping.testing import fill_episodes, make_hars, toy_factors
 
@@ -26,7 +28,7 @@ EPISODIC = HarsConfig(alignment="episodic")
 def test_discounted_shaped_return_telescopes(seed: int, length: int, gamma: float, terminate: bool,
                                              scale: float, sparse: bool) -> None:
     src, buf = make_hars(toy_factors(), seed=seed, gamma=gamma, capacity=64,
-                         config=HarsConfig(vpm_state_proj=bool(seed % 2), alignment="episodic"))
+                         config=EPISODIC)
     with torch.no_grad():  # an arbitrary potential: random network, random output scale and offset
         last = src.nets.vpm.mlp[-1]
         last.weight.mul_(scale)
@@ -106,10 +108,14 @@ def test_relabel_after_a_training_step_uses_the_new_weights_and_statistics() -> 
     assert not torch.allclose(after, before)
 
 
-def test_terminal_penalty_pulls_terminal_potential_to_zero() -> None:
+def test_terminal_penalty_pulls_terminal_potential_to_zero(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The terminal penalty alone beside L_align: no auxiliary or entropy term.
+    monkeypatch.setattr(objective, "AUX_WEIGHT", 0.0)
+    monkeypatch.setattr(objective, "ENTROPY_WEIGHT", 0.0)
+
     def final_terminal_phi_sq(eta: float) -> float:
-        cfg = HarsConfig(terminal_weight=eta, aux_weight=0.0, entropy_weight=0.0, lr=3e-3, joint=False)
-        src, buf = make_hars(toy_factors(), config=cfg)
+        monkeypatch.setattr(objective, "TERMINAL_WEIGHT", eta)
+        src, buf = make_hars(toy_factors(), config=HarsConfig(lr=3e-3))
         rng = np.random.default_rng(0)
         rows = [r[-1] for r in fill_episodes(src, buf, [4] * 8, rng, terminate=True)]
         batch = buf.gather(np.asarray(rows))

@@ -25,10 +25,11 @@ from mira.tasks.card import load_task
 
 
 def _filled(seed: int = 0, config: HarsConfig | None = None, capacity: int = 512,
-            names: tuple[str, ...] = ("f_a", "f_b", "f_c")) -> tuple[HarsReward, object, np.random.Generator]:
+            names: tuple[str, ...] = ("f_a", "f_b", "f_c"), background: bool | None = None
+            ) -> tuple[HarsReward, object, np.random.Generator]:
     # The shaping machinery is tested with the PBRS term on (κ = 1; the default κ is 0).
     config = replace(config or HarsConfig(), shaping_weight=1.0)
-    src, buf = make_hars(toy_factors(names), seed=seed, capacity=capacity, config=config)
+    src, buf = make_hars(toy_factors(names), seed=seed, capacity=capacity, config=config, background=background)
     rng = np.random.default_rng(seed)
     fill_episodes(src, buf, [25, 40, 17], rng)
     return src, buf, rng
@@ -73,8 +74,11 @@ def test_joint_gradient_equals_backprop_through_the_critic(algo: str) -> None:
 
     def run(direct: bool) -> None:
         torch.manual_seed(0)
-        # σ_R = 1 (no return scaling) so that the direct path, which cannot divide by σ_R², matches.
-        src, buf, rng = _filled(config=HarsConfig(joint=True, return_scale=False))
+        src, buf, rng = _filled()
+        # σ_R = 1 (as before any episode has ended) so that the direct path, which cannot divide by σ_R²,
+        # matches.
+        src.memory.return_sq = None
+        src.nets.weights_changed()
         agent = make_agent(algo, 6, 2, AgentConfig(hidden=(16, 16), batch_size=32), torch.device("cpu"))
         batch = buf.sample(32, rng)
         reward = src.relabel(batch)
@@ -127,13 +131,6 @@ def test_training_runs_on_every_kth_update_but_phi_is_always_current(every: int)
     assert src.updates == len(range(0, 7, every)) and src.calls == 7
 
 
-def test_non_joint_reward_is_a_constant_for_the_agent() -> None:
-    src, buf, rng = _filled(config=HarsConfig(joint=False))
-    batch = buf.sample(16, rng)
-    assert not src.relabel(batch).requires_grad
-    src.update(batch, 0)
-
-
 def test_update_without_relabel_recomputes_the_forward() -> None:
     src, buf, rng = _filled()
     batch = buf.sample(16, rng)
@@ -142,7 +139,7 @@ def test_update_without_relabel_recomputes_the_forward() -> None:
 
 
 def test_recompute_all_equals_per_row_values() -> None:
-    src, buf, _ = _filled(config=HarsConfig(recompute_chunk=7))
+    src, buf, _ = _filled()
     src.columns.flush()  # rows stored since the last batch needed them are evaluated now
     n = buf.size
     cols = [c[:n].clone() for c in (src.columns.phi, src.columns.phi_next, src.columns.aux)]
@@ -150,7 +147,7 @@ def test_recompute_all_equals_per_row_values() -> None:
     running.load_state_dict(src.memory.factor_stats.state_dict())
     for c in (src.columns.phi, src.columns.phi_next, src.columns.aux):
         c.zero_()
-    src.columns.recompute_all(src.config.recompute_chunk, reset_stats=True)
+    src.columns.recompute_all(7, reset_stats=True)  # small chunks: several passes over the rows
     for before, c in zip(cols, (src.columns.phi, src.columns.phi_next, src.columns.aux), strict=True):
         assert torch.equal(before, c[:n])
     # batch statistics after the reset agree with the per-row running (Welford) ones
@@ -346,14 +343,14 @@ def test_background_training_by_default_only_with_a_spare_core(monkeypatch: pyte
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cores)), raising=False)
     monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
     monkeypatch.setattr(torch, "get_num_threads", lambda: threads)
-    src = HarsReward(toy_factors(), HarsConfig(train_in_background=setting))
+    src = HarsReward(toy_factors(), HarsConfig(), background=setting)
     assert src.background is expected
     assert src.describe()["train_in_background"] is expected
 
 
 @pytest.mark.parametrize("background", [False, True])
 def test_a_non_finite_training_step_stops_the_run_before_its_weights_are_used(background: bool) -> None:
-    src, buf, rng = _filled(config=HarsConfig(update_every=2, train_in_background=background))
+    src, buf, rng = _filled(config=HarsConfig(update_every=2), background=background)
     for step in range(2):  # the first step lands at once; the second update does not train
         batch = buf.sample(16, rng)
         src.relabel(batch)

@@ -55,7 +55,7 @@ def _reframe(tmp_path: Path, replies: list[str], proxy_sign: float, states: tupl
         assert program.version == 1  # only candidates reach the proxy
         return proxy_sign * card.feature_values(s)["x_velocity"]
 
-    reframer = Reframer(SRRConfig(permutations=200), card, backend, action_dim=6)
+    reframer = Reframer(SRRConfig(), card, backend, action_dim=6, permutations=200)
     return reframer.reframe(tmp_path / "iv", example_program("halfcheetah", 0), _evidence(), obs, values, obs, actions,
                             proxy, seed=0, explain=explain)
 
@@ -83,7 +83,7 @@ def test_valid_but_harmful_candidate_is_rejected_with_backoff(tmp_path: Path,
 def test_returns_veto_a_candidate_that_explains_them_worse(tmp_path: Path, states: tuple[np.ndarray, np.ndarray],
                                                           candidate_r2: float, accepted: bool) -> None:
     """The proxy test passes either way; a candidate whose out-of-sample R² of the returns falls by more than
-    ``max_r2_loss`` (0.95 → 0.80) is refused, a small loss (0.95 → 0.90) within the tolerance is not."""
+    ``MAX_R2_LOSS`` (0.95 → 0.80) is refused, a small loss (0.95 → 0.90) within the tolerance is not."""
     def explain(program):  # type: ignore[no-untyped-def]
         return 0.95 if program.version == 0 else candidate_r2
 
@@ -100,7 +100,7 @@ def test_returns_veto_a_candidate_that_explains_them_worse(tmp_path: Path, state
 def test_returns_veto_scales_with_what_the_program_leaves_unexplained(
         tmp_path: Path, states: tuple[np.ndarray, np.ndarray], candidate_r2: float, accepted: bool) -> None:
     """A program that explains the returns almost exactly (R² 0.99998) refuses a candidate at 0.99 (a loss
-    below ``max_r2_loss`` that leaves 500 times as much unexplained) and accepts one within noise of it."""
+    below ``MAX_R2_LOSS`` that leaves 500 times as much unexplained) and accepts one within noise of it."""
     def explain(program):  # type: ignore[no-untyped-def]
         return 0.99998 if program.version == 0 else candidate_r2
 

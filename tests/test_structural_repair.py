@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+import mira.outer.repair
 from mira.cli import main
 from mira.engineer.offline import OfflineEngineer
 from mira.explain import explain
@@ -141,13 +142,15 @@ def test_engineer_does_not_add_a_feature_that_explains_only_part_of_the_residual
 
 
 @pytest.mark.slow
-def test_mira_repairs_a_program_without_progress(tmp_path: Path, fast_train_args: list[str]) -> None:
+def test_mira_repairs_a_program_without_progress(tmp_path: Path, fast_train_args: list[str],
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
     """From a HalfCheetah program with no progress factor, the structural check fires, the engineer adds
     the feature that explains the returns, and SRR accepts it on the returns' evidence."""
+    monkeypatch.setattr(mira.outer.repair, "REPAIR_MIN_EPISODES", 12)
     run = tmp_path / "run"
     code = main(["train", "--task", "halfcheetah", "--method", "mira", "--steps", "6000", "--seed", "0",
                  "--program", str(FLAWED / "halfcheetah" / "no_progress.json"), "--out", str(run),
-                 *fast_train_args, "--set", "mira.repair_min_episodes=12"])
+                 *fast_train_args])
     assert code == 0
     rows = read_csv(run / "diagnostics.csv")
     assert any(r["unexplained"] == "x_velocity" for r in rows)

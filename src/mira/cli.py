@@ -27,7 +27,7 @@ import torch
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from mira.cli_types import Parser, nonneg_int, positive_int
-from mira.config import TrainConfig, from_dict, to_dict
+from mira.config import TrainConfig, drop_removed_fields, from_dict, to_dict
 from mira.errors import DiskFullError, Interrupted, MiraError, NonFiniteError, UsageError
 from mira.loop.stop import sigterm_interrupts
 from mira.methods import build_method
@@ -189,7 +189,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         path = prepare_run_dir(args.resume, resume=True, overwrite=False)
         try:
             saved = json.loads((path / "config.json").read_text(encoding="utf-8"))
-            cfg: TrainConfig = from_dict(TrainConfig, saved["config"])
+            settings = drop_removed_fields(saved["config"], f"--resume {path}: config.json")
+            cfg: TrainConfig = from_dict(TrainConfig, settings)
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise UsageError(f"--resume {path}: config.json is unusable ({exc})") from exc
         if args.steps is not None and args.steps != cfg.steps:

@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mira.agents.base import AgentConfig
-from mira.baselines.config import BaselinesConfig
 from mira.llm.config import LLMConfig
 from mira.outer.config import OuterLoopConfig
 from mira.shaping.config import HarsConfig
@@ -59,10 +58,8 @@ class TrainConfig:
     """Start from this factor-program JSON instead of asking the LLM (methods that use programs)."""
     hars: HarsConfig = field(default_factory=HarsConfig)
     """HARS inner-loop shaping (methods with a learned potential)."""
-    baselines: BaselinesConfig = field(default_factory=BaselinesConfig)
-    """Comparison baselines LaRe, RD, IRCR and VIB (each method reads its own section)."""
     mira: OuterLoopConfig = field(default_factory=OuterLoopConfig)
-    """MIRA's outer loop: monitor (MCM), reframer (SRR) and the ablation mode."""
+    """MIRA's outer loop: monitor (MCM), reframer (SRR) and structural repair (the ablation is the method's)."""
 
 
 def to_dict(obj: Any) -> Any:
@@ -93,6 +90,38 @@ def from_dict(cls: type[Any], data: dict[str, Any], where: str = "config") -> An
     return cls(**kwargs)
 
 
+def drop_removed_fields(data: dict[str, Any], where: str = "config") -> dict[str, Any]:
+    """A saved configuration without the fields this version no longer has (:mod:`mira.config_history`).
+
+    A removed field at the value it always had is dropped (the run behaves the same); at any other value
+    it is an error naming the field, since this version cannot reproduce that run. Returns a new dict.
+    """
+    from mira.config_history import REMOVED_FIELDS
+    from mira.errors import UsageError
+
+    def walk(node: dict[str, Any], prefix: str) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for key, value in node.items():
+            path = f"{prefix}{key}"
+            if path in REMOVED_FIELDS:
+                if value != REMOVED_FIELDS[path]:
+                    raise UsageError(f"{where}: {path} = {value!r}: this setting was removed (it always is "
+                                     f"{REMOVED_FIELDS[path]!r} now), so this version cannot reproduce the run")
+                continue
+            if isinstance(value, dict) and any(name.startswith(f"{path}.") for name in REMOVED_FIELDS):
+                value = walk(value, f"{path}.")
+                if not value and path in _REMOVED_SECTIONS:
+                    continue
+            out[key] = value
+        return out
+
+    return walk(data, "")
+
+
+_REMOVED_SECTIONS = frozenset({"baselines", "baselines.lare", "baselines.rd", "baselines.ircr", "baselines.vib"})
+"""Sections that went with all their fields."""
+
+
 def _is_tuple_hint(hint: Any) -> bool:
     origin = typing.get_origin(hint)
     if origin is tuple:
@@ -104,11 +133,14 @@ def _is_tuple_hint(hint: Any) -> bool:
 
 PRESETS: dict[str, tuple[str, ...]] = {
     "paper": ("agent.lr=1e-4", "hars.lr=1e-4", "mira.mcm.delta_t=5000", "mira.repair=false"),
+    "paper-letter": ("agent.lr=1e-4", "hars.lr=1e-4", "mira.mcm.delta_t=5000", "mira.repair=false",
+                     "hars.alignment=episodic"),
 }
 """Named sets of ``--set`` assignments (``mira train --preset NAME``), applied before ``--lr`` and
 ``--set``. ``paper``: Table 1's learning rate for every network and its monitoring cycle (ΔT = 5,000
-steps), and the monitor's anomaly trigger alone (the other Table 1 values are the defaults already). The
-paper's alignment of Φ to the episodic reward is a separate switch, ``--set hars.alignment=episodic``."""
+steps), and the monitor's anomaly trigger alone (the other Table 1 values are the defaults already).
+``paper-letter``: that and section 4.2's Φ, TD-aligned to the episodic reward and added to the agent's
+reward with κ = 1, the paper's letter, under which Φ learns only how near an episode's end a state is."""
 
 
 def apply_override(cfg: Any, assignment: str) -> None:

@@ -72,7 +72,8 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
                    help=_help(AgentConfig, "lr", extra=" Sets HARS's learning rate too."))
     t.add_argument("--preset", choices=sorted(PRESETS), default=None,
                    help="a named set of defaults applied before --lr and --set: 'paper' = Table 1 of the "
-                        "paper (lr 1e-4 for the agent and HARS)")
+                        "paper (lr 1e-4 for the agent and HARS, ΔT 5,000, the anomaly trigger alone); "
+                        "'paper-letter' = that and section 4.2's Φ aligned to the episodic reward, κ = 1")
     t.add_argument("--hidden", type=hidden_widths, default=AgentConfig().hidden,
                    help=_help(AgentConfig, "hidden", extra=" Comma-separated, e.g. 256,256."))
     t.add_argument("--eval-every", type=positive_int, default=c.eval_every, help=_help(c, "eval_every"))
@@ -85,7 +86,7 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
     t.add_argument("--threads", type=positive_int, default=None, help=_help(c, "threads"))
     t.add_argument("--program", default=None, help=_help(c, "program"))
     t.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override any config field, e.g. --set mira.mcm.delta_t=1000 --set hars.joint=false")
+                   help="override any config field, e.g. --set mira.mcm.delta_t=1000 --set hars.shaping_weight=1")
     t.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
     add_llm_flags(t)
 

@@ -32,8 +32,6 @@ class AgentConfig:
     """SAC: learn the temperature towards a target entropy of -|A|."""
     exploration_noise: float = 0.1
     """DDPG: std of the Gaussian action noise (actions in [-1, 1])."""
-    policy_delay: int = 1
-    """Actor (and target) update every this many critic updates."""
     kernels: str = "fused"
     """How an update is computed: ``fused`` (explicit backward formulas on reused buffers and one fused
     Adam call, see :mod:`mira.agents.networks`: the fast path) or ``plain`` (autograd and the optimisers'

@@ -89,8 +89,6 @@ class DDPG:
         self.critic_opt.step()
         self.updates += 1
         metrics = {"critic_loss": critic_loss.detach(), "q_mean": q.detach().mean()}
-        if self.updates % cfg.policy_delay:
-            return metrics
 
         # Actor: maximise Q(s, π(s)) through the updated critic, which gets no gradient from this loss.
         q_pi = self.critic(obs, self.actor(obs), params=[p.detach() for p in self.critic.params()])[0]
@@ -130,8 +128,6 @@ class DDPG:
         self._critic_step.step()
         self.updates += 1
         metrics = {"critic_loss": critic_loss, "q_mean": q_mean}
-        if self.updates % cfg.policy_delay:
-            return metrics
 
         with torch.no_grad():
             # Actor: maximise Q(s, pi(s)); the critic gets no gradient from this loss.

@@ -91,10 +91,9 @@ class SAC:
         cfg = self.config
         obs, n = batch.obs, batch.obs.shape[0]
         alpha = self.log_alpha.detach().exp()
-        actor_step = (self.updates + 1) % cfg.policy_delay == 0
         # The standard normal draws, in the fused path's order: the target's, then the actor loss's.
         noise_next = torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device)
-        noise_pi = torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device) if actor_step else None
+        noise_pi = torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device)
 
         # Critic: soft Bellman target from the target critics; truncation is not a terminal. The reward
         # may carry gradient (HARS's joint objective): the critic loss then reaches it through the target.
@@ -109,8 +108,6 @@ class SAC:
         self.critic_opt.step()
         self.updates += 1
         metrics = {"critic_loss": critic_loss.detach(), "q_mean": q.detach().mean(), "alpha": alpha}
-        if noise_pi is None:
-            return metrics
 
         # Actor: maximise min-Q minus alpha log-prob on the updated critics (detached: no gradient to them).
         action, logp = self.actor.sample_with(obs, noise_pi)
@@ -140,18 +137,14 @@ class SAC:
         n = obs.shape[0]
         alpha = self.log_alpha.detach().exp()
 
-        # When the actor is updated too, its forward pass on next_obs (target) and on obs (actor loss)
-        # is one pass over both: the actor does not change in between, and the noise is drawn in the
-        # same order as two separate samples would draw it.
-        actor_step = (self.updates + 1) % cfg.policy_delay == 0
+        # The actor's forward pass on next_obs (target) and on obs (actor loss) is one pass over both: the
+        # actor does not change in between, and the noise is drawn in the same order as two separate
+        # samples would draw it.
         with torch.no_grad():
             # Critic: soft Bellman target from the target critics; truncation is not a terminal.
             noise = torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device)
-            if actor_step:
-                noise = torch.cat((noise, torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device)))
-                pi_in = torch.cat((batch.next_obs, obs))
-            else:
-                pi_in = batch.next_obs
+            noise = torch.cat((noise, torch.randn(n, self.act_dim, dtype=obs.dtype, device=obs.device)))
+            pi_in = torch.cat((batch.next_obs, obs))
             both_action, both_logp, saved = squashed_gaussian_forward(pi_k.forward(actor, pi_in), noise)
             next_action, next_logp = both_action[:n], both_logp[:n]
             q_next = q_k.forward(self._target_params, torch.cat((batch.next_obs, next_action), -1))
@@ -172,8 +165,6 @@ class SAC:
         self._critic_step.step()
         self.updates += 1
         metrics = {"critic_loss": critic_loss, "q_mean": q_mean, "alpha": alpha}
-        if self.updates % cfg.policy_delay:
-            return metrics
 
         with torch.no_grad():
             # Actor: maximise min-Q minus alpha log-prob, on the freshly updated critics, which get no

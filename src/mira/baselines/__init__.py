@@ -8,7 +8,7 @@
 
 All of them sample only finished episodes, read episodes from the replay buffer by row ranges
 (:mod:`mira.rewards.episodes`), never read the dense reward for their reward (only :mod:`.diagnostics`
-does, for the logged ``corr_dense``), and are configured by :class:`~mira.baselines.config.BaselinesConfig`
-(``TrainConfig.baselines``). Each module's docstring says where ours differs from its paper. Method
-builders live in :mod:`mira.methods.baselines`.
+does, for the logged ``corr_dense``), and take their parameters as one dataclass each
+(:mod:`mira.baselines.config`; a run uses the defaults). Each module's docstring says where ours differs
+from its paper. Method builders live in :mod:`mira.methods.baselines`.
 """

@@ -60,9 +60,8 @@ class TrajectoryRewardSource(RewardSource):
     needs_complete_episodes: ClassVar[bool] = True
     log_fields: ClassVar[tuple[str, ...]] = ("corr_dense",)
 
-    def __init__(self, *, max_episodes: int = 100_000, log_corr_dense: bool = True) -> None:
+    def __init__(self, *, max_episodes: int = 100_000) -> None:
         self.max_episodes = max_episodes
-        self.log_corr_dense = log_corr_dense
         self._last: tuple[np.ndarray, torch.Tensor] | None = None
 
     def bind(self, ctx: RewardContext) -> None:
@@ -89,8 +88,6 @@ class TrajectoryRewardSource(RewardSource):
 
     def diagnostics(self, batch: Batch) -> dict[str, torch.Tensor]:
         """``corr_dense`` of the reward given for ``batch`` (logging only; see :mod:`.diagnostics`)."""
-        if not self.log_corr_dense:
-            return {}
         if self._last is not None and self._last[0] is batch.indices:
             reward = self._last[1]
         else:
@@ -161,8 +158,8 @@ class ReturnDecompositionSource(TrajectoryRewardSource):
 
     loss_field: ClassVar[str] = "decoder_loss"
 
-    def __init__(self, config: DecoderConfig, *, log_corr_dense: bool = True) -> None:
-        super().__init__(max_episodes=config.max_episodes, log_corr_dense=log_corr_dense)
+    def __init__(self, config: DecoderConfig) -> None:
+        super().__init__(max_episodes=config.max_episodes)
         if config.loss not in ("rrd", "full"):
             raise ValueError(f"decoder loss must be 'rrd' or 'full', not {config.loss!r}")
         for name in ("fit_every", "fit_iters", "episodes_per_batch", "subseq_len", "min_episodes"):

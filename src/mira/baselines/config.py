@@ -1,8 +1,8 @@
 """Hyperparameters of the trajectory-feedback baselines (LaRe, RD, IRCR, VIB).
 
-Plain dataclasses with no heavy imports: :mod:`mira.config` embeds :class:`BaselinesConfig` in every
-run's ``TrainConfig`` (field ``baselines``), so ``config.json`` records them and ``--resume`` rebuilds
-them. Only the method that runs reads its own section.
+One plain dataclass per method, the documented constructor parameters of its reward class (as
+keyword arguments are for a library's algorithms). They are not part of a run's ``TrainConfig``: a
+``mira train`` run builds every baseline with these defaults (:mod:`mira.methods.baselines`).
 
 Defaults follow the papers where they say something and are chosen for cost otherwise: decoders are
 small MLPs (2×128) refitted on every environment step once learning has started, on a batch of
@@ -12,7 +12,7 @@ per episode, Ren et al. 2022's default), so a fit costs about one agent update.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 
 @dataclass
@@ -77,13 +77,10 @@ class DecoderConfig:
 
 @dataclass
 class LaReConfig(DecoderConfig):
-    """LaRe (Qu et al. 2025): a static LLM-written factor program, decoded to a per-step reward."""
+    """LaRe (Qu et al. 2025): a static LLM-written factor program, decoded to a per-step reward.
 
-    max_attempts: int = 3
-    """LLM requests allowed to get an admissible program; each retry shows the LLM its previous reply
-    and why it was rejected (LaRe's self-verification). The ``offline`` engineer needs one."""
-    sandbox: bool = True
-    """Also run the sandbox realizability check on real states before accepting the program."""
+    Only the decoder is configured here; the program is requested with the run's ``llm`` settings
+    (``llm.followups`` + 1 requests at most) and always passes the static and sandbox checks."""
 
 
 @dataclass
@@ -96,20 +93,3 @@ class VIBConfig(DecoderConfig):
     """Weight of KL(q(z|s,a) ‖ N(0, I)) per step against the (normalised) return-regression loss."""
     decoder_hidden: tuple[int, ...] = (64,)
     """Hidden widths of the decoder z → reward (the encoder uses ``hidden``)."""
-
-
-@dataclass
-class BaselinesConfig:
-    """Settings of the paper's comparison baselines (section 5.1.2); each method reads its own section."""
-
-    lare: LaReConfig = field(default_factory=LaReConfig)
-    """LaRe: LLM factor program + reward decoder."""
-    rd: RDConfig = field(default_factory=RDConfig)
-    """RD: linear reward by least squares on trajectories."""
-    ircr: IRCRConfig = field(default_factory=IRCRConfig)
-    """IRCR: normalised-return guidance reward."""
-    vib: VIBConfig = field(default_factory=VIBConfig)
-    """VIB: stochastic bottleneck encoder + reward decoder."""
-    log_corr_dense: bool = True
-    """Log ``corr_dense``, the Pearson correlation of the method's reward with the hidden dense reward
-    on each sampled batch. Diagnostics only: it never feeds any reward."""

@@ -48,11 +48,11 @@ class IRCRReward(TrajectoryRewardSource):
     name = "ircr"
     log_fields: ClassVar[tuple[str, ...]] = ("ircr_return_min", "ircr_return_max", "ircr_heap_min", "corr_dense")
 
-    def __init__(self, config: IRCRConfig | None = None, *, log_corr_dense: bool = True) -> None:
+    def __init__(self, config: IRCRConfig | None = None) -> None:
         self.config = config or IRCRConfig()
         if self.config.heap_episodes < 0 or not 0.0 <= self.config.heap_fraction <= 1.0:
             raise ValueError("ircr: heap_episodes must be >= 0 and heap_fraction in [0, 1]")
-        super().__init__(max_episodes=self.config.max_episodes, log_corr_dense=log_corr_dense)
+        super().__init__(max_episodes=self.config.max_episodes)
         self.r_min = 0.0
         self.r_max = 0.0
         self._stats: dict[str, torch.Tensor] = {}

@@ -17,10 +17,10 @@ Ours:
   (``prompts/lare_note.txt``) saying the factors feed a return-decomposition decoder. The ``offline``
   engineer answers with its LSFS program (it cannot read prose). The program is **never revised**.
 * **Self-verification = MIRA's factor checks**: the reply is parsed strictly
-  (:func:`mira.engineer.lsfs_prompt.parse_program_reply`), statically checked, and (``sandbox=True``) run in
-  the sandbox on real states. A rejected reply is shown back to the LLM with the reasons, up to
-  ``max_attempts`` requests; LaRe instead samples several candidates and keeps a passing one — one
-  conversation with feedback costs fewer calls and is deterministic at temperature 0.
+  (:func:`mira.engineer.lsfs_prompt.parse_program_reply`), statically checked, and run in the sandbox
+  on real states. A rejected reply is shown back to the LLM with the reasons, up to ``llm.followups``
+  times (``llm.followups + 1`` requests, as for LSFS); LaRe instead samples several candidates and keeps
+  a passing one — one conversation with feedback costs fewer calls and is deterministic at temperature 0.
 * Factors are evaluated in-process by the compiled evaluator (:class:`mira.factors.CompiledProgram`:
   only admitted code, non-finite values zeroed and counted).
 * The decoder is an MLP over the z-scored factor values (LaRe's MuJoCo decoder is a small network
@@ -121,10 +121,9 @@ class LaReReward(ReturnDecompositionSource):
         factors: LatentFactors,
         config: LaReConfig | None = None,
         *,
-        log_corr_dense: bool = True,
         origin: str = "",
     ) -> None:
-        super().__init__(config or LaReConfig(), log_corr_dense=log_corr_dense)
+        super().__init__(config or LaReConfig())
         self.factors = factors
         self.origin = origin
         self._dim = len(factors.names)
@@ -200,12 +199,13 @@ def check_lare_program(program: FactorProgram, card: TaskCard, *, sandbox: bool,
 
 
 def synthesize_lare_program(
-    card: TaskCard, action_dim: int, backend: LLMBackend, config: LaReConfig, *, seed: int = 0
+    card: TaskCard, action_dim: int, backend: LLMBackend, *, max_requests: int, seed: int = 0
 ) -> tuple[FactorProgram, list[dict[str, Any]]]:
     """Ask ``backend`` for the latent-reward program; returns it and a record of every attempt.
 
-    Raises :class:`UsageError` naming the last reasons when no admissible program came back within
-    ``config.max_attempts`` requests.
+    ``max_requests`` is a run's ``llm.followups + 1`` (the offline engineer's first answer is admissible;
+    it reads no feedback). Raises :class:`UsageError` naming the last reasons when no admissible program
+    came back within them.
     """
     from mira.engineer.backends import find_layer
     from mira.engineer.lsfs_prompt import parse_program_reply
@@ -213,20 +213,20 @@ def synthesize_lare_program(
     from mira.llm.audit import AuditedBackend
     from mira.llm.base import LLMRequest
 
-    if config.max_attempts <= 0:
-        raise UsageError("lare: max_attempts must be positive")
+    if max_requests <= 0:
+        raise UsageError(f"lare: llm.followups must be >= 0, not {max_requests - 1}")
     messages = lare_messages(card, action_dim)
     context = lare_context(card, action_dim)
     audit = find_layer(backend, AuditedBackend)
     attempts: list[dict[str, Any]] = []
     reasons: list[str] = []
-    for attempt in range(config.max_attempts):
+    for attempt in range(max_requests):
         request = LLMRequest(messages=list(messages), purpose="lare", temperature=0.0,
                              context={**context, "attempt": attempt, "previous_rejection": reasons})
         reply = backend.complete(request)
         try:
             program = parse_program_reply(reply.content, card)
-            reasons = check_lare_program(program, card, sandbox=config.sandbox, seed=seed)
+            reasons = check_lare_program(program, card, sandbox=True, seed=seed)
         except ProgramParseError as exc:
             reasons = [str(exc)]
         ok = not reasons
@@ -241,7 +241,7 @@ def synthesize_lare_program(
         messages = [*messages, {"role": "assistant", "content": reply.content},
                     {"role": "user", "content": _prompt("lare_retry.txt").substitute(
                         reasons="\n".join(f"- {r}" for r in reasons)).strip()}]
-    raise UsageError(f"lare: no admissible latent-reward program after {config.max_attempts} request(s): "
+    raise UsageError(f"lare: no admissible latent-reward program after {max_requests} request(s): "
                      + "; ".join(reasons))
 
 
@@ -255,7 +255,6 @@ def lare_program(
     card: TaskCard,
     run_dir: Path,
     llm: LLMConfig,
-    config: LaReConfig,
     *,
     program_file: str | None = None,
     seed: int = 0,
@@ -278,7 +277,7 @@ def lare_program(
             raise UsageError(f"--program {program_file}: it is a program for task {program.task!r}, not {card.name!r}")
         if program.version != 0:
             program = replace(program, version=0, parent_version=None, edits=(), diff="")
-        reasons = check_lare_program(program, card, sandbox=config.sandbox, seed=seed)
+        reasons = check_lare_program(program, card, sandbox=True, seed=seed)
         if reasons:
             raise UsageError(f"--program {program_file}: not admissible: " + "; ".join(reasons))
         origin = f"program file {program_file}"
@@ -287,7 +286,8 @@ def lare_program(
         engine = backend if backend is not None else make_lare_backend(llm, run_dir)
         from mira.tasks.envs import action_dim
 
-        program, attempts = synthesize_lare_program(card, action_dim(card), engine, config, seed=seed)
+        program, attempts = synthesize_lare_program(card, action_dim(card), engine, max_requests=llm.followups + 1,
+                                                    seed=seed)
         origin = f"reward engineer {llm.backend}"
     atomic_write_json(saved, program.to_json())
     atomic_write_json(Path(run_dir) / SYNTHESIS_FILE, {"origin": origin, "attempts": attempts,

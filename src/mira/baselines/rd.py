@@ -57,14 +57,14 @@ class RDReward(TrajectoryRewardSource):
     name = "rd"
     log_fields: ClassVar[tuple[str, ...]] = ("rd_loss", "corr_dense")
 
-    def __init__(self, config: RDConfig | None = None, *, log_corr_dense: bool = True) -> None:
+    def __init__(self, config: RDConfig | None = None) -> None:
         self.config = config or RDConfig()
         cfg = self.config
         if cfg.refit_every_episodes <= 0 or cfg.min_episodes <= 0 or cfg.max_episodes <= 0:
             raise ValueError("rd: refit_every_episodes, min_episodes and max_episodes must be positive")
         if cfg.ridge < 0:
             raise ValueError("rd: ridge must be >= 0")
-        super().__init__(max_episodes=cfg.max_episodes, log_corr_dense=log_corr_dense)
+        super().__init__(max_episodes=cfg.max_episodes)
 
     def bind(self, ctx: RewardContext) -> None:
         super().bind(ctx)

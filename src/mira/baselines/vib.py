@@ -64,11 +64,11 @@ class VIBReward(ReturnDecompositionSource):
     loss_field = "vib_loss"
     log_fields: ClassVar[tuple[str, ...]] = ("vib_loss", "vib_kl", "corr_dense")
 
-    def __init__(self, config: VIBConfig | None = None, *, log_corr_dense: bool = True) -> None:
+    def __init__(self, config: VIBConfig | None = None) -> None:
         cfg = config or VIBConfig()
         if cfg.latent_dim <= 0 or cfg.beta < 0:
             raise ValueError("vib: latent_dim must be positive and beta >= 0")
-        super().__init__(cfg, log_corr_dense=log_corr_dense)
+        super().__init__(cfg)
         self.vib_config = cfg
         self._kl = torch.tensor(float("nan"))
 

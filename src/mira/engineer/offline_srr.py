@@ -40,10 +40,9 @@ from mira.engineer.factorcode import (
 )
 from mira.engineer.offline_evidence import METRICS, RequestContext, parse_evidence
 from mira.llm.base import OFFLINE_ENGINEER_LABEL
+from mira.shaping.attribution import PROPOSE_MIN_GAIN, PROPOSE_MIN_SHARE
 
 # Rule thresholds: standardised values are robust z-scores (median/MAD), raw values as in 4.3.1.
-UNEXPLAINED_MIN_GAIN = 0.02  # out-of-sample R² of the returns a task feature must add to be proposed
-UNEXPLAINED_MIN_SHARE = 0.5  # ... and the fraction of what the program leaves unexplained it must cover
 UNEXPLAINED_CANDIDATES = 2  # Add candidates from the attribution, best features first
 PVC_LOW_Z = -1.0
 PVC_LOW_RAW = 0.1
@@ -480,9 +479,9 @@ def add_unexplained(ev: RequestContext) -> list[tuple[dict, list[dict]]]:
     out: list[tuple[dict, list[dict]]] = []
     used: set[str] = set()
     for entry in ev.unexplained:
-        if entry["gain"] < UNEXPLAINED_MIN_GAIN or entry["feature"] in used:
+        if entry["gain"] < PROPOSE_MIN_GAIN or entry["feature"] in used:
             continue
-        if entry["share"] is not None and entry["share"] < UNEXPLAINED_MIN_SHARE:
+        if entry["share"] is not None and entry["share"] < PROPOSE_MIN_SHARE:
             continue  # explains part of the residual only: a correlate of what is missing, not the thing
         feature, form, rng = entry["feature"], entry["form"], entry["range"]
         used.add(feature)

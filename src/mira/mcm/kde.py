@@ -24,6 +24,13 @@ from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
 
+BANDWIDTH_EMA = 0.05
+"""Rate ``ρ`` of the bandwidth EMA ``h ← (1-ρ) h + ρ h_median``: a ~20-cycle time constant, so the score
+scale does not jump each time the buffer changes by one vector."""
+BANDWIDTH_FLOOR = 0.05
+"""Lower bound on the bandwidth, in standardised units: a buffer of (nearly) identical vectors must not make
+every other vector infinitely anomalous."""
+
 
 def _logsumexp(a: FloatArray) -> float:
     m = float(np.max(a))
@@ -47,7 +54,8 @@ class HealthyModel:
     """
 
     def __init__(
-        self, dim: int, capacity: int = 128, bandwidth_ema: float = 0.05, bandwidth_floor: float = 0.05
+        self, dim: int, capacity: int = 128, bandwidth_ema: float = BANDWIDTH_EMA,
+        bandwidth_floor: float = BANDWIDTH_FLOOR
     ) -> None:
         if dim < 1 or capacity < 1:
             raise ValueError("dim and capacity must be >= 1")

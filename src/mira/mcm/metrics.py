@@ -24,6 +24,11 @@ from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
 
+PVC_EPS = 1e-8
+"""``ε`` of eq. (16): keeps the correlation finite, and near 0, when Φ or the value is constant."""
+RPE_EPS = 1e-8
+"""``ε`` of eq. (18): keeps the ratio finite when the target has no variance."""
+
 _HALF_LOG_2PI_E = 0.5 * np.log(2.0 * np.pi * np.e)
 _LOG2 = float(np.log(2.0))
 
@@ -154,7 +159,7 @@ def pearson(x: ArrayLike, y: ArrayLike, eps: float = 1e-8) -> float:
     return cov / (float(np.sqrt(np.mean(xc * xc) + eps)) * float(np.sqrt(np.mean(yc * yc) + eps)))
 
 
-def d_pvc(phi: ArrayLike, value: ArrayLike, eps: float = 1e-8) -> float:
+def d_pvc(phi: ArrayLike, value: ArrayLike, eps: float = PVC_EPS) -> float:
     """Potential–value correlation on the fixed evaluation set: ``pearson(Φ(s), V̂_ext(s))``."""
     return pearson(phi, value, eps)
 
@@ -218,7 +223,7 @@ def d_rpe(
     phi_next: ArrayLike,
     gamma: float,
     terminal_mask: ArrayLike | None = None,
-    eps: float = 1e-8,
+    eps: float = RPE_EPS,
 ) -> float:
     """Normalised residual prediction error, eq. (18).
 

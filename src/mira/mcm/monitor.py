@@ -18,8 +18,9 @@ hysteresis of section 4.3.2 — after a trigger the monitor stays *anomalous* un
 ``S < τ_release = τ - Δ_hyst``; no new trigger is raised while anomalous, so one persistent
 pathology raises one trigger, not one per cooldown period; vectors from before the standardiser
 has ``min_history`` values never enter the healthy buffer; τ is taken over the last
-``score_window`` scores; and an anomaly led by an improvement (``ignore_improvements``) is logged
-as benign instead of triggering.
+``SCORE_WINDOW`` scores; and an anomaly led by an improvement is logged as benign instead of
+triggering (Algorithm 1 is two-sided, but SRR would then steer along ∇ log p back toward the
+healthy density, i.e. toward a *worse* PVC or RPE, and accept edits that undo the improvement).
 
 The cooldown is owned here. The trainer must act on ``result.trigger`` alone (Algorithm 3's
 "trigger and c_cool = 0" is already folded in) and report the SRR outcome through
@@ -37,7 +38,7 @@ from numpy.typing import ArrayLike
 
 from mira.mcm import metrics
 from mira.mcm.band import stagnation_band
-from mira.mcm.config import TABLE1_DELTA_T, MCMConfig
+from mira.mcm.config import TABLE1_DELTA_T, TABLE1_GAMMA, MCMConfig
 from mira.mcm.kde import HealthyModel, top_contributors
 from mira.mcm.records import (
     METRIC_NAMES,
@@ -64,6 +65,31 @@ __all__ = [
 
 _STATE_VERSION = 1
 
+M_BASE = 10
+"""``M_base``: the return baseline is an EMA with span ``M_base`` cycles (rate ``2/(M_base+1)``); a cycle is
+inserted as healthy only if its return beats it. Ten cycles follow the return's trend while averaging out
+one cycle's evaluation noise."""
+HYST_FRACTION = 0.5
+"""Hysteresis margin ``Δ_hyst = HYST_FRACTION · (τ_trigger - median(S_hist))``: scale-free, since S is in nats
+but its spread depends on D and the bandwidth. 0.5 releases halfway between the threshold and the typical
+score; with 0.25 a persistent shift was released (and re-triggered) by ordinary score noise after its cooldown
+in about 1 synthetic stream in 10."""
+SCORE_WINDOW = 50
+"""τ is the q-th percentile of the last this many scores: the median-heuristic bandwidth shrinks as the buffer
+grows (h ∝ 1/√(2 log(n+1))), so scores drift upward during a run, and a percentile over all past scores would
+be exceeded far more often than 1 − q/100 of the time in a perfectly stationary regime."""
+TOP_M = 2
+"""Metric-level contributors reported on a trigger (ranked by ``|∇ log p|``): the leading reading and one more."""
+Q_MAX = 99.0
+"""Cap on ``q`` under back-off (Algorithm 3, line 24): back-offs can never make a trigger impossible (q = 100
+would be the largest score itself)."""
+ENTROPY_SAMPLES = 16
+"""Draws per state when the monitor itself estimates a tanh-squashed policy's entropy (only the tanh
+correction is sampled; the Gaussian part is exact)."""
+ENTROPY_SEED = 0
+"""Seed of the fixed noise of that estimate: the same noise every cycle, so that d_PEG sees the policy's
+change, not Monte-Carlo noise (see :func:`metrics.tanh_gaussian_entropy`)."""
+
 
 def _finite(x: float | None) -> bool:
     return x is not None and math.isfinite(x)
@@ -77,8 +103,11 @@ class MetacognitiveMonitor:
     bit-for-bit as the original would have.
     """
 
-    def __init__(self, config: MCMConfig | None = None) -> None:
+    def __init__(self, config: MCMConfig | None = None, gamma: float = TABLE1_GAMMA) -> None:
+        """``gamma``: the discount of d_RPE's target ``r + γ Φ(s')``; must equal the agent's γ (a run passes
+        it), Table 1's 0.99 for a monitor used on its own."""
         self.config = config if config is not None else MCMConfig()
+        self.gamma = float(gamma)
         self._build()
 
     def _build(self) -> None:
@@ -86,18 +115,8 @@ class MetacognitiveMonitor:
         d = len(METRIC_NAMES)
         self.q: float = float(c.q)
         self.cycle: int = 0
-        self.standardizer = RobustStandardizer(
-            d,
-            window=c.window,
-            beta=c.ema_beta,
-            min_history=c.min_history,
-            floor_abs=c.mad_floor_abs,
-            floor_rel=c.mad_floor_rel,
-            z_clip=c.z_clip,
-        )
-        self.model = HealthyModel(
-            d, capacity=c.buffer_size, bandwidth_ema=c.bandwidth_ema, bandwidth_floor=c.bandwidth_floor
-        )
+        self.standardizer = RobustStandardizer(d, min_history=c.min_history)
+        self.model = HealthyModel(d, capacity=c.buffer_size)
         self.scores: list[float] = []
         self.above: int = 0
         self.cooldown: int = 0
@@ -112,13 +131,13 @@ class MetacognitiveMonitor:
         """Mean policy entropy of the snapshot: ``snap.entropy`` if given, else computed.
 
         Computed as the closed-form Gaussian entropy, or for a squashed policy the tanh-corrected
-        estimate with fixed noise (``entropy_seed``), so it is deterministic across cycles.
+        estimate with fixed noise (``ENTROPY_SEED``), so it is deterministic across cycles.
         """
         if snap.entropy is not None:
             return float(snap.entropy)
         if snap.squashed:
-            rng = np.random.default_rng(self.config.entropy_seed)
-            h = metrics.tanh_gaussian_entropy(snap.policy_mean, snap.policy_log_std, self.config.entropy_samples, rng)
+            rng = np.random.default_rng(ENTROPY_SEED)
+            h = metrics.tanh_gaussian_entropy(snap.policy_mean, snap.policy_log_std, ENTROPY_SAMPLES, rng)
         else:
             h = metrics.diag_gaussian_entropy(snap.policy_log_std)
         return float(np.mean(h))
@@ -142,9 +161,9 @@ class MetacognitiveMonitor:
             tpd = math.nan
         else:
             tpd = metrics.d_tpd(snap.policy_mean, snap.policy_log_std, snap.prev_policy_mean, snap.prev_policy_log_std)
-        pvc = metrics.d_pvc(snap.phi_eval, snap.value_eval, c.pvc_eps)
+        pvc = metrics.d_pvc(snap.phi_eval, snap.value_eval, metrics.PVC_EPS)
         fap = math.nan if self.prev_attention is None else metrics.d_fap(self.prev_attention, snap.attention_mean)
-        rpe = metrics.d_rpe(snap.phi_s, snap.r_ext, snap.phi_next, c.gamma, snap.terminal, c.rpe_eps)
+        rpe = metrics.d_rpe(snap.phi_s, snap.r_ext, snap.phi_next, self.gamma, snap.terminal, metrics.RPE_EPS)
         return np.array([peg, tpd, pvc, fap, rpe], dtype=np.float64)
 
     def diagnose(self, snap: CycleSnapshot) -> MCMResult:
@@ -182,7 +201,7 @@ class MetacognitiveMonitor:
         baseline_before = self.baseline
         beats = _finite(g) and baseline_before is not None and g > baseline_before
         if _finite(g):
-            alpha = 2.0 / (c.m_base + 1.0)
+            alpha = 2.0 / (M_BASE + 1.0)
             self.baseline = g if self.baseline is None else self.baseline + alpha * (g - self.baseline)
 
         common: dict[str, Any] = {
@@ -227,19 +246,18 @@ class MetacognitiveMonitor:
         score = self.model.score(d)
         self.scores.append(score)
         hist = np.array([s for s in self.scores if math.isfinite(s)], dtype=np.float64)
-        if c.score_window > 0:
-            hist = hist[-c.score_window :]
+        hist = hist[-SCORE_WINDOW:]
         tau = float(np.percentile(hist, self.q))
         self.model.update_bandwidth()
 
         # Lines 8-10: performance-gated insertion.
-        inserted = beats and (c.insert_when_anomalous or not self.anomalous)
+        inserted = beats
         if inserted:
             self.model.insert(d)
 
         # Line 11 and hysteresis.
         self.above = self.above + 1 if score > tau else 0
-        delta_hyst = c.hyst_fraction * max(tau - float(np.median(hist)), 0.0)
+        delta_hyst = HYST_FRACTION * max(tau - float(np.median(hist)), 0.0)
         release = tau - delta_hyst
         if self.anomalous and score < release:
             self.anomalous = False
@@ -257,11 +275,10 @@ class MetacognitiveMonitor:
             gradient = {n: float(v) for n, v in zip(METRIC_NAMES, grad, strict=True)}
             contributors = [
                 Contributor(METRIC_NAMES[i], float(d[i]), float(grad[i]), reading(METRIC_NAMES[i], grad[i]))
-                for i in top_contributors(grad, c.top_m)
+                for i in top_contributors(grad, TOP_M)
             ]
             # The largest pull decides: an improvement there is not a pathology to reframe.
-            benign = c.ignore_improvements and bool(contributors) and is_improvement(contributors[0].metric,
-                                                                                    contributors[0].gradient)
+            benign = bool(contributors) and is_improvement(contributors[0].metric, contributors[0].gradient)
             if not benign:
                 trigger = True
                 self.cooldown = c.k_cool
@@ -292,9 +309,9 @@ class MetacognitiveMonitor:
         self.cooldown = self.config.k_cool
 
     def on_backoff(self, delta_q: float = 0.5) -> None:
-        """SRR abstained with back-off (line 24): ``c ← max(c, ⌊K_cool/2⌋)``, ``q ← min(q + Δq, q_max)``."""
+        """SRR abstained with back-off (line 24): ``c ← max(c, ⌊K_cool/2⌋)``, ``q ← min(q + Δq, Q_MAX)``."""
         self.cooldown = max(self.cooldown, self.config.k_cool // 2)
-        self.q = min(self.q + float(delta_q), self.config.q_max)
+        self.q = min(self.q + float(delta_q), Q_MAX)
 
     @property
     def buffer_fill(self) -> int:
@@ -303,10 +320,11 @@ class MetacognitiveMonitor:
 
     # ------------------------------------------------------------------------------ checkpointing
     def state_dict(self) -> dict[str, Any]:
-        """Everything needed to resume: config, q, counters, histories, standardiser, buffer, h."""
+        """Everything needed to resume: config, γ, q, counters, histories, standardiser, buffer, h."""
         return {
             "version": _STATE_VERSION,
             "config": self.config.to_dict(),
+            "gamma": self.gamma,
             "q": self.q,
             "cycle": self.cycle,
             "standardizer": self.standardizer.state_dict(),
@@ -322,11 +340,13 @@ class MetacognitiveMonitor:
         }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore a :meth:`state_dict` (its config replaces this monitor's, so resuming is exact)."""
+        """Restore a :meth:`state_dict` (its config and γ replace this monitor's, so resuming is exact; a
+        checkpoint without γ keeps this monitor's)."""
         version = int(state.get("version", 0))
         if version != _STATE_VERSION:
             raise ValueError(f"unsupported MCM state version {version} (expected {_STATE_VERSION})")
         self.config = MCMConfig.from_dict(dict(state["config"]))
+        self.gamma = float(state.get("gamma", self.gamma))
         self._build()
         self.q = float(state["q"])
         self.cycle = int(state["cycle"])

@@ -40,7 +40,8 @@ IMPROVEMENTS: frozenset[tuple[str, int]] = frozenset({("pvc", -1), ("rpe", 1)})
 
 
 def is_improvement(metric: str, gradient: float) -> bool:
-    """Whether a contributor's deviation reads as an improvement (see ``MCMConfig.ignore_improvements``)."""
+    """Whether a contributor's deviation reads as an improvement: the monitor logs such an anomaly as benign
+    instead of triggering (see :mod:`mira.mcm.monitor`)."""
     return (metric, 1 if gradient > 0 else -1) in IMPROVEMENTS
 
 

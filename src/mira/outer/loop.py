@@ -21,7 +21,7 @@ accepts a new program; on acceptance HARS re-initialises ϕ, φ and recomputes t
 while θ and ψ are kept, and the monitor starts its cooldown; on abstention it backs off.
 
 Ablations (section 5.4): ``no-srr`` runs the monitor and logs it but never edits; ``no-mcm`` calls
-SRR every ``periodic_cycles`` cycles (at most ``periodic_max`` times), without diagnostic evidence.
+SRR every ``PERIODIC_CYCLES`` cycles (at most ``PERIODIC_MAX`` times), without diagnostic evidence.
 """
 
 from __future__ import annotations
@@ -55,6 +55,16 @@ from mira.tasks.card import TaskCard
 
 log = logging.getLogger(__name__)
 
+ABLATIONS = ("full", "no-mcm", "no-srr")
+"""``full`` (MCM + SRR), ``no-mcm`` (periodic, unguided SRR) or ``no-srr`` (diagnosis only)."""
+HOLDOUT_MAX_STATES = 1000
+"""At most this many held-out states enter the diagnostics (evenly subsampled): bounds a cycle's cost."""
+PERIODIC_CYCLES = 10
+"""no-mcm: call SRR every this many cycles, about as often as MIRA's triggers can come (each starts a cooldown
+of ``K_cool`` = 10 cycles)."""
+PERIODIC_MAX = 5
+"""no-mcm: at most this many periodic interventions (match MIRA's median trigger count)."""
+
 
 class MiraOuterLoop:
     def __init__(
@@ -66,10 +76,16 @@ class MiraOuterLoop:
         program: FactorProgram,
         action_dim: int,
         followups: int = 0,
+        *,
+        gamma: float,
+        ablation: str = "full",
     ) -> None:
-        if config.mode not in ("full", "no-mcm", "no-srr"):
-            raise ValueError(f"unknown outer-loop mode {config.mode!r}")
+        """``gamma`` is the agent's discount (d_RPE's target must use the trainer's γ); ``ablation`` one of
+        :data:`ABLATIONS`, from the method name."""
+        if ablation not in ABLATIONS:
+            raise ValueError(f"unknown outer-loop ablation {ablation!r}")
         self.config = config
+        self.ablation = ablation
         if config.mcm.delta_t is None:
             raise ValueError("the outer loop needs its cycle length: resolve mcm.delta_t (None = one episode) first")
         self.interval: int = config.mcm.delta_t
@@ -77,7 +93,7 @@ class MiraOuterLoop:
         self.hars = hars
         self.backend = backend
         self.program = program
-        self.monitor = MetacognitiveMonitor(config.mcm)
+        self.monitor = MetacognitiveMonitor(config.mcm, gamma=gamma)
         self.surrogate = EditSurrogate(lambda_comp=config.srr.lambda_comp)
         self.reframer = None if backend is None else Reframer(config.srr, card, backend, action_dim,
                                                                       self.surrogate, followups)
@@ -85,15 +101,14 @@ class MiraOuterLoop:
         self.interventions = 0
         self.prev_actor: dict[str, torch.Tensor] | None = None
         self.pending_observation: dict[str, Any] | None = None
-        self.band_feature = config.band_feature or card.band_feature
-        self.structural = StructuralCheck(config, card, hars)
+        self.structural = StructuralCheck(card, hars)
         self._diagnostics: CsvLog | None = None
 
     # ------------------------------------------------------------------------------------------- cycle
     def on_cycle(self, ctx: CycleContext) -> dict[str, float]:
         cfg = self.config
         rollout = ctx.rollout(cfg.holdout_episodes, 0)
-        keep = np.linspace(0, len(rollout.obs) - 1, min(cfg.holdout_max_states, len(rollout.obs))).astype(int)
+        keep = np.linspace(0, len(rollout.obs) - 1, min(HOLDOUT_MAX_STATES, len(rollout.obs))).astype(int)
         obs, next_obs = rollout.obs[keep], rollout.next_obs[keep]
         obs_t = torch.as_tensor(obs)
         stats = ctx.agent.policy_stats(obs_t)
@@ -120,14 +135,14 @@ class MiraOuterLoop:
         )
         result = self.monitor.diagnose(snapshot)
         # The unguided ablation gets no evidence of any kind, this included.
-        attribution = self.structural.observe() if cfg.repair and cfg.mode != "no-mcm" else None
+        attribution = self.structural.observe() if cfg.repair and self.ablation != "no-mcm" else None
         self._log(ctx, result, attribution)
         self._observe_pending(result)
         # The head's current fit, whatever program it is over (train.csv's columns are the first program's).
         atomic_write_json(ctx.run.path / "decomposition.json",
                           {"step": ctx.step, "version": self.program.version, **self.hars.head.describe()})
 
-        structural = cfg.repair and cfg.mode != "no-mcm" and self.structural.triggered
+        structural = cfg.repair and self.ablation != "no-mcm" and self.structural.triggered
         if structural and attribution is not None and attribution.best is not None:
             best = attribution.best
             shape = best.feature if best.form == "value" else f"-{best.feature}²"
@@ -135,10 +150,10 @@ class MiraOuterLoop:
                      "them out of sample with R² %.3f instead of %.3f (%d cycles in a row)", ctx.step, shape,
                      best.r2, attribution.program_r2, self.structural.streak)
         wants_srr = False
-        if cfg.mode == "full":
+        if self.ablation == "full":
             wants_srr = result.trigger or structural
-        elif cfg.mode == "no-mcm":
-            wants_srr = (self.cycle + 1) % cfg.periodic_cycles == 0 and self.interventions < cfg.periodic_max
+        elif self.ablation == "no-mcm":
+            wants_srr = (self.cycle + 1) % PERIODIC_CYCLES == 0 and self.interventions < PERIODIC_MAX
         decision = None
         if result.trigger:
             why = ", ".join(f"{str(c['metric']).upper()} {c['value']:+.2f} ({c['reading']})"
@@ -147,7 +162,7 @@ class MiraOuterLoop:
                      float(result.threshold), why or "no single leading metric")
         if wants_srr and self.reframer is not None:
             # A rejection makes the monitor harder to trigger, unless the structural check alone asked.
-            backoff_monitor = result.trigger or cfg.mode != "full" or not structural
+            backoff_monitor = result.trigger or self.ablation != "full" or not structural
             cause = "anomaly" if result.trigger else "structural" if structural else "periodic"
             decision = self._reframe(ctx, result, rollout, keep, values[keep], attention, recent, attribution,
                                      backoff_monitor, cause)
@@ -162,11 +177,11 @@ class MiraOuterLoop:
                  attention: dict[str, float], recent: float, attribution: ReturnAttribution | None,
                  backoff_monitor: bool, cause: str) -> SRRDecision:
         assert self.reframer is not None
-        guided = self.config.mode == "full"
+        guided = self.ablation == "full"
         band = None
-        if self.band_feature is not None:
-            center, half = stagnation_band(self.card.feature_values(rollout.obs)[self.band_feature])
-            band = {"feature": self.band_feature, "center": center, "halfwidth": half}
+        if self.card.band_feature is not None:
+            center, half = stagnation_band(self.card.feature_values(rollout.obs)[self.card.band_feature])
+            band = {"feature": self.card.band_feature, "center": center, "halfwidth": half}
         ev = result.evidence()
         evidence = Evidence(
             step=ctx.step, d=ev["d"], d_raw=ev["d_raw"], score=ev["score"], threshold=ev["threshold"],

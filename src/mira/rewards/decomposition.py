@@ -91,9 +91,8 @@ class EpisodeSumRegression:
             self.head = (self.head + 1) % self.max_episodes
         self.sums[slot], self.returns[slot], self.lengths[slot] = summed, float(episode_return), float(length)
 
-    def fit(self, nonneg: np.ndarray | None = None) -> np.ndarray:
-        """Solve the ridge problem on every stored episode; returns θ̂ (float64, also kept in ``theta``).
-        With ``nonneg`` (a boolean mask over the features) those weights are constrained to be ≥ 0."""
+    def fit(self) -> np.ndarray:
+        """Solve the ridge problem on every stored episode; returns θ̂ (float64, also kept in ``theta``)."""
         n = self.count
         if n == 0:
             return self.theta
@@ -107,7 +106,7 @@ class EpisodeSumRegression:
         self.chosen_ridge = self._loo_ridge(x, r, a, b, scale / per, jitter) if self.select and n > 2 else self.ridge
         a_reg = a + np.diag(self.chosen_ridge * scale / per + jitter)
         try:
-            theta = np.linalg.solve(a_reg, b) if nonneg is None else _constrained(a_reg, b, nonneg)
+            theta = np.linalg.solve(a_reg, b)
         except np.linalg.LinAlgError:
             theta = np.linalg.lstsq(a_reg, b, rcond=None)[0]
         if not np.all(np.isfinite(theta)):
@@ -155,18 +154,3 @@ class EpisodeSumRegression:
         self.loss = float(state["loss"])
         self.r2 = float(state.get("r2", float("nan")))
 
-
-def _constrained(a_reg: np.ndarray, b: np.ndarray, nonneg: np.ndarray) -> np.ndarray:
-    """argmin ``θᵀAθ − 2bᵀθ`` subject to ``θ[nonneg] ≥ 0``: with ``A = LLᵀ`` this is the least-squares
-    problem ``‖Lᵀθ − L⁻¹b‖²``, which NNLS solves once each free weight is split into a positive and a
-    negative part."""
-    from scipy.optimize import nnls
-
-    chol = np.linalg.cholesky(a_reg)
-    m, y = chol.T, np.linalg.solve(chol, b)
-    free = ~np.asarray(nonneg, dtype=bool)
-    cols = np.concatenate([m, -m[:, free]], axis=1)
-    z, _ = nnls(cols, y, maxiter=50 * cols.shape[1])
-    theta = z[: m.shape[1]].copy()
-    theta[free] -= z[m.shape[1]:]
-    return theta

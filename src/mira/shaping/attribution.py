@@ -28,6 +28,33 @@ import numpy as np
 
 from mira.rewards.decomposition import EpisodeSumRegression
 
+# When a feature explains the returns, or a program explains them better or worse: one home for the
+# thresholds of the outer loop's structural trigger, the offline engineer's Add rule and SRR's checks.
+# Gains and losses are in out-of-sample R² of the episodic returns; shares are of ``1 − program R²``.
+
+REPAIR_MIN_GAIN = 0.05
+"""Structural trigger: out-of-sample R² a feature must add to the program's for a cycle to count."""
+REPAIR_MIN_SHARE = 0.75
+"""... and the share of what the program leaves unexplained that gain must cover: a missing factor, a loophole
+proxy or a misplaced gate leaves a residual one task feature explains almost entirely; a feature that merely
+correlates with a skill the agent is acquiring (a gait angle) explains part of it."""
+PROPOSE_MIN_GAIN = 0.02
+"""Offline engineer: R² a feature must add to be proposed as a new factor (laxer than the trigger: once SRR
+is called, a candidate costs a check, not an intervention)."""
+PROPOSE_MIN_SHARE = 0.5
+"""... and the share of the unexplained part it must cover (at least half: a correlate explains less)."""
+MIN_R2_GAIN = 0.02
+"""SRR: a candidate also passes when its R² of the returns exceeds the current program's by this. The AUC
+test's value labels come from the current program's decomposition, so they cannot vouch for a program that
+expresses what the current one misses; the returns themselves can."""
+MAX_R2_LOSS = 0.05
+"""SRR: a candidate fails, whatever its proxy test, when its R² falls below the current program's by more
+than this: it would express what the task pays for worse, which labels from the current program cannot see."""
+MAX_UNEXPLAINED_GROWTH = 1.0
+"""... or by more than this multiple of what the current program leaves unexplained, when that is smaller:
+a candidate may at most double the unexplained part (else a program with R² 0.99998 would accept one that
+leaves hundreds of times as much unexplained as "a loss of 0.01")."""
+
 
 def cv_r2(sums: np.ndarray, returns: np.ndarray, ridge: float, folds: int = 5, centred: bool = False,
           select: bool = False) -> float:

@@ -21,6 +21,11 @@ import torch
 from mira.replay import ReplayBuffer
 from mira.shaping.factors import FactorSource, RunningStats
 
+RECOMPUTE_CHUNK = 65_536
+"""Rows per vectorised pass when factors (or Φ) are evaluated over many stored rows at once (after a
+program change, or on a batch of observations): large enough to amortise the calls, small enough to
+bound the temporary arrays of a million-row buffer."""
+
 
 class FactorColumns:
     """PHI at s, PHI at s′ and AUX factor values of every stored row (``phi``, ``phi_next``, ``aux``)."""

@@ -8,10 +8,10 @@ program:
 
 fitted in closed form so that every stored episode's sum of r̂ matches its episodic return
 (:class:`~mira.rewards.decomposition.EpisodeSumRegression`, ridge in standardised units), refitted
-after every episode. PHI factors are read at s′ by default because a MuJoCo task's reward is earned
-*over* the step (HalfCheetah's is the displacement during it, which the velocity at s′ tracks far
-better than the velocity at s; ``phi_at`` chooses). The head only ever sees episodic returns; the dense reward is
-never read, and no loss of the critic or of Φ trains it.
+after every episode. PHI factors are read at s′ because a MuJoCo task's reward is earned *over* the
+step (HalfCheetah's is the displacement during it, which the velocity at s′ tracks far better than the
+velocity at s). The head only ever sees episodic returns; the dense reward is never read, and no loss
+of the critic or of Φ trains it.
 
 The w_i are the interpretable weights of section 3: a weight near zero says a factor does not help
 explain the returns, a sign against the factor's declared polarity says the program has it backwards,
@@ -29,48 +29,47 @@ import torch
 from mira.rewards.decomposition import EpisodeSumRegression
 from mira.rewards.episodes import EpisodeStore
 from mira.shaping.columns import FactorColumns
-from mira.shaping.config import HarsConfig
 from mira.shaping.factors import FactorSource
 
-PHI_AT = ("next", "state", "both")
+DECOMPOSE_RIDGE = 1.0
+"""The largest ridge (in standardised units: one pseudo-episode) the leave-one-episode-out selection
+may choose; it picks among ``DECOMPOSE_RIDGE · 10⁻ᵏ`` so the ridge fades as episodes pin the weights."""
+DECOMPOSE_MIN_EPISODES = 2
+"""Finished episodes needed before the head's first fit (r̂ is 0 until then): one return says nothing
+about how the factors share it."""
+DECOMPOSE_MAX_EPISODES = 5_000
+"""Episodes whose summed features the head keeps (oldest dropped first): O(d) each, so many cost little."""
 
 
-def log_fields(phi_names: list[str], aux_names: list[str], phi_at: str) -> tuple[str, ...]:
+def log_fields(phi_names: list[str], aux_names: list[str]) -> tuple[str, ...]:
     """The ``train.csv`` columns of :meth:`DecompositionHead.figures` for a program's factors."""
-    names = feature_names(phi_names, aux_names, phi_at)
+    names = feature_names(phi_names, aux_names)
     return (*(f"w_{n}" for n in names), *(f"share_{n}" for n in names[:-1]), "decomp_r2", "decomp_loss")
 
 
-def feature_names(phi_names: list[str], aux_names: list[str], phi_at: str) -> list[str]:
-    """Names of the head's features in order: PHI factors (at s′, s or both), AUX factors, ``bias``."""
-    if phi_at == "next":
-        phi = list(phi_names)
-    elif phi_at == "state":
-        phi = [f"{n}@s" for n in phi_names]
-    else:
-        phi = [f"{n}@s" for n in phi_names] + list(phi_names)
-    return [*phi, *aux_names, "bias"]
+def feature_names(phi_names: list[str], aux_names: list[str]) -> list[str]:
+    """Names of the head's features in order: PHI factors (at s′), AUX factors, ``bias``."""
+    return [*phi_names, *aux_names, "bias"]
 
 
 class DecompositionHead:
     """r̂ as a linear function of one transition's factor values, fitted to episodic returns.
 
-    The head reads factor values from the columns its owner keeps (``features(phi_s, phi_next, aux)``);
-    the owner feeds it each finished episode, and a new program's head the episodes still stored.
+    The head reads factor values from the columns its owner keeps (``features(phi_next, aux)``);
+    the owner feeds it each finished episode, and a new program's head the episodes still stored. The
+    ridge is centred (each feature penalised by its spread across episodes, not its size) and chosen at
+    each fit by leave-one-episode-out error: summed over an episode a program's factors are nearly
+    collinear (effort, posture and the bias move with speed), and a fixed ridge would move weight along
+    that direction (a control cost fitted as a bonus), while the selected one lets the returns decide.
     """
 
-    def __init__(self, config: HarsConfig, phi_names: list[str], aux_names: list[str]) -> None:
-        if config.decompose_phi_at not in PHI_AT:
-            raise ValueError(f"hars.decompose_phi_at must be one of {PHI_AT}, not {config.decompose_phi_at!r}")
-        self.config = config
+    def __init__(self, phi_names: list[str], aux_names: list[str]) -> None:
         self.phi_names, self.aux_names = list(phi_names), list(aux_names)
-        self.names = feature_names(self.phi_names, self.aux_names, config.decompose_phi_at)
-        self.regression = EpisodeSumRegression(len(self.names), ridge=config.decompose_ridge,
-                                               centred=config.decompose_ridge_centred,
-                                               select=config.decompose_ridge_select,
-                                               max_episodes=config.decompose_max_episodes)
+        self.names = feature_names(self.phi_names, self.aux_names)
+        self.regression = EpisodeSumRegression(len(self.names), ridge=DECOMPOSE_RIDGE, centred=True, select=True,
+                                               max_episodes=DECOMPOSE_MAX_EPISODES)
         self.weights = np.zeros(len(self.names), dtype=np.float64)
-        """The current (w, u, b): zero until ``decompose_min_episodes`` episodes have been fitted."""
+        """The current (w, u, b): zero until ``DECOMPOSE_MIN_EPISODES`` episodes have been fitted."""
         self.shares = np.zeros(len(self.names) - 1, dtype=np.float64)
         """Each factor's share of mean |r̂ − b| over the last fitted episode (sums to 1, bias excluded)."""
 
@@ -78,19 +77,16 @@ class DecompositionHead:
     def fitted(self) -> bool:
         return self.regression.fits > 0
 
-    def features(self, phi_s: np.ndarray, phi_next: np.ndarray, aux: np.ndarray) -> np.ndarray:
-        """The head's inputs ``[N, D]`` from PHI values at s and s′ and AUX values (float64)."""
-        n = phi_s.shape[0]
-        at = self.config.decompose_phi_at
-        phi = phi_next if at == "next" else phi_s if at == "state" else np.concatenate([phi_s, phi_next], axis=1)
-        return np.concatenate([phi.astype(np.float64), aux.astype(np.float64), np.ones((n, 1))], axis=1)
+    def features(self, phi_next: np.ndarray, aux: np.ndarray) -> np.ndarray:
+        """The head's inputs ``[N, D]`` from PHI values at s′ and AUX values at (s, a) (float64)."""
+        n = phi_next.shape[0]
+        return np.concatenate([phi_next.astype(np.float64), aux.astype(np.float64), np.ones((n, 1))], axis=1)
 
     def add_episode(self, x: np.ndarray, episode_return: float) -> None:
         """An episode's per-step features ``[T, D]`` and its return; refits once enough are stored."""
         self.regression.add(x.sum(axis=0), episode_return, float(x.shape[0]))
-        if self.regression.count >= self.config.decompose_min_episodes:
-            nonneg = np.arange(len(self.names)) < len(self.names) - 1 if self.config.decompose_nonneg else None
-            self.weights = self.regression.fit(nonneg).copy()
+        if self.regression.count >= DECOMPOSE_MIN_EPISODES:
+            self.weights = self.regression.fit().copy()
             contrib = np.abs(x[:, :-1] * self.weights[None, :-1]).mean(axis=0)
             total = float(contrib.sum())
             self.shares = contrib / total if total > 0 else np.zeros_like(contrib)
@@ -111,7 +107,7 @@ class DecompositionHead:
                 "shares": dict(zip(self.names[:-1], map(float, self.shares), strict=True)),
                 "r2": self.regression.r2, "per_step_residual_rms": float(np.sqrt(self.regression.loss))
                 if np.isfinite(self.regression.loss) else float("nan"),
-                "episodes": self.regression.count, "phi_at": self.config.decompose_phi_at,
+                "episodes": self.regression.count, "phi_at": "next",
                 "ridge": self.regression.chosen_ridge}
 
     def state_dict(self) -> dict[str, Any]:
@@ -130,13 +126,14 @@ class DecomposedReward:
     """r̂ over the current program: a :class:`DecompositionHead` fed from the factor columns, evaluated
     on stored rows (relabelling) and on raw transitions (held-out rollouts)."""
 
-    def __init__(self, config: HarsConfig, factors: FactorSource, columns: FactorColumns) -> None:
+    def __init__(self, factors: FactorSource, columns: FactorColumns) -> None:
         self.factors, self.columns = factors, columns
-        self.head = DecompositionHead(config, list(factors.phi_names), list(factors.aux_names))
+        self.head = DecompositionHead(list(factors.phi_names), list(factors.aux_names))
         self.changed()
 
     def _inputs(self, rows: np.ndarray) -> np.ndarray:
-        return self.head.features(*self.columns.numpy_rows(rows))
+        _, phi_next, aux = self.columns.numpy_rows(rows)
+        return self.head.features(phi_next, aux)
 
     def add_episode(self, rows: np.ndarray, episode_return: float) -> None:
         """A finished episode's rows (factors evaluated or pending) and its return; refits the head."""
@@ -156,12 +153,8 @@ class DecomposedReward:
         """Take the head's new weights: as tensors for relabelling, as figures for the log."""
         w = self.head.weights
         k, k_aux = len(self.head.phi_names), len(self.head.aux_names)
-        at = self.head.config.decompose_phi_at
-        n_s = k if at in ("state", "both") else 0
-        n_n = k if at in ("next", "both") else 0
         t = torch.from_numpy(w.astype(np.float32))
-        self._w_s, self._w_n = t[:n_s], t[n_s:n_s + n_n]
-        self._w_aux, self._w_bias = t[n_s + n_n:n_s + n_n + k_aux], float(w[-1])
+        self._w_n, self._w_aux, self._w_bias = t[:k], t[k:k + k_aux], float(w[-1])
         self.metrics = {name: torch.tensor(v, dtype=torch.float32) for name, v in self.head.figures().items()}
 
     def of_rows(self, rows: torch.Tensor) -> torch.Tensor:
@@ -169,8 +162,6 @@ class DecomposedReward:
         r = torch.full((rows.shape[0],), self._w_bias, dtype=torch.float32)
         if self._w_n.numel():
             r = r.addmv_(self.columns.phi_next.index_select(0, rows), self._w_n)
-        if self._w_s.numel():
-            r = r.addmv_(self.columns.phi.index_select(0, rows), self._w_s)
         if self._w_aux.numel():
             r = r.addmv_(self.columns.aux.index_select(0, rows), self._w_aux)
         return r
@@ -181,5 +172,5 @@ class DecomposedReward:
             return np.zeros(0)
         f = self.factors
         aux = f.aux(obs, np.asarray(actions, dtype=np.float32)) if f.aux_names else np.zeros((len(obs), 0))
-        x = self.head.features(f.phi(obs), f.phi(next_obs), aux)
+        x = self.head.features(f.phi(next_obs), aux)
         return np.asarray(x @ self.head.weights, dtype=np.float64)

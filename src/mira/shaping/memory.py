@@ -19,23 +19,25 @@ import numpy as np
 
 from mira.replay import ReplayBuffer
 from mira.rewards.episodes import EpisodeStore
-from mira.shaping.columns import FactorColumns
-from mira.shaping.config import HarsConfig
-from mira.shaping.decomposition import DecomposedReward, DecompositionHead
+from mira.shaping.columns import RECOMPUTE_CHUNK, FactorColumns
+from mira.shaping.decomposition import DECOMPOSE_MAX_EPISODES, DecomposedReward, DecompositionHead
 from mira.shaping.factors import FactorSource, RunningStats
 from mira.shaping.potential import STD_FLOOR, InputSnapshot
+
+RETURN_SCALE_EMA = 0.05
+"""Rate of the exponential average of squared episodic returns behind σ_R: about the last twenty
+episodes, so the unit follows the policy's progress without jumping with one episode."""
 
 
 class FactorMemory:
     """Factor columns, statistics, stored episodes, σ_R and r̂ over one replay buffer."""
 
-    def __init__(self, config: HarsConfig, buffer: ReplayBuffer, obs_dim: int) -> None:
-        self.config = config
+    def __init__(self, buffer: ReplayBuffer, obs_dim: int) -> None:
         self.buffer = buffer
         self.obs_stats = RunningStats(obs_dim)
-        self.episodes = EpisodeStore(buffer, config.decompose_max_episodes)
+        self.episodes = EpisodeStore(buffer, DECOMPOSE_MAX_EPISODES)
         self.return_sq: float | None = None
-        """EMA of squared episodic returns: σ_R² (see HarsConfig.return_scale)."""
+        """EMA of squared episodic returns: σ_R² (see :attr:`phi_scale`)."""
         self.columns: FactorColumns  # these two come with the program (``install``)
         self.decomposed: DecomposedReward
 
@@ -46,9 +48,9 @@ class FactorMemory:
         if recompute:
             self.columns.flush()  # with the old program: its rows' states stay in the observation statistics
         self.columns = FactorColumns(factors, self.buffer, self.obs_stats)
-        self.decomposed = DecomposedReward(self.config, factors, self.columns)
+        self.decomposed = DecomposedReward(factors, self.columns)
         if recompute:
-            self.columns.recompute_all(self.config.recompute_chunk, reset_stats=True)
+            self.columns.recompute_all(RECOMPUTE_CHUNK, reset_stats=True)
             self.decomposed.refit(self.episodes, self.buffer.capacity)
 
     @property
@@ -58,8 +60,12 @@ class FactorMemory:
 
     @property
     def phi_scale(self) -> float:
-        """σ_R: the unit Φ is learned in (1 until an episode has ended, or with ``return_scale`` off)."""
-        if not self.config.return_scale or self.return_sq is None:
+        """σ_R: the unit Φ is learned in, the root mean square of recent episodic returns (at least 1; 1
+        until an episode has ended). Adam moves weights by about the learning rate per step whatever the
+        gradient's size, so a potential in raw units that must reach returns of 10⁴–10⁵
+        (HumanoidStandup) would need millions of updates; in units of σ_R it stays of order one on every
+        task, and the alignment and joint losses are measured in those units."""
+        if self.return_sq is None:
             return 1.0
         return max(1.0, math.sqrt(self.return_sq))
 
@@ -75,7 +81,7 @@ class FactorMemory:
         if not math.isfinite(episode_return):
             return False
         sq = float(episode_return) ** 2
-        rho = self.config.return_scale_ema
+        rho = RETURN_SCALE_EMA
         self.return_sq = sq if self.return_sq is None else (1.0 - rho) * self.return_sq + rho * sq
         if not self.episodes.add(rows, episode_return):
             return False
@@ -97,13 +103,14 @@ class FactorMemory:
         the columns), or another program's (its factors evaluated on the stored transitions now)."""
         flat, starts = _concat(rows)
         if factors is None:
-            x = self.decomposed.head.features(*self.columns.numpy_rows(flat))
+            _, phi_next, aux = self.columns.numpy_rows(flat)
+            x = self.decomposed.head.features(phi_next, aux)
         else:
             buf = self.buffer
             obs, nxt = buf.obs.numpy()[flat], buf.next_obs.numpy()[flat]
             aux = factors.aux(obs, buf.action.numpy()[flat]) if factors.aux_names else np.zeros((len(flat), 0))
-            head = DecompositionHead(self.config, list(factors.phi_names), list(factors.aux_names))
-            x = head.features(factors.phi(obs), factors.phi(nxt), aux)
+            head = DecompositionHead(list(factors.phi_names), list(factors.aux_names))
+            x = head.features(factors.phi(nxt), aux)
         return np.add.reduceat(x, starts, axis=0)
 
     def feature_sums(self, rows: list[np.ndarray], feature_values: Callable[[np.ndarray], dict[str, np.ndarray]]

@@ -9,8 +9,11 @@
   handles any K, including K = 0 (then α is empty and v = 0).
 * :class:`TemporalContextEncoder` (ψ): a GRU over the ``W − 1`` previous aggregations of the same
   episode, predicting the current one, ``v̂_t``. It is an auxiliary regulariser; it never feeds Φ.
-* :class:`ValuePotential` (φ): a two-hidden-layer MLP from v (optionally concatenated with a learned
-  state projection) to the scalar potential Φ(s).
+* :class:`ValuePotential` (φ): a two-hidden-layer MLP from v to the scalar potential Φ(s) (the paper's
+  optional state projection beside v is not used: the state reaches Φ through the query).
+
+The sizes are Table 1's where it gives them (d_z, the TCE's and the VPM's widths), otherwise small:
+the networks see a handful of factors.
 
 The per-factor embedder is written so the factor axis costs no Python loop: the ID and metadata of
 the K factors are mapped once per forward to a per-factor scale and shift ``(a_k, c_k)``, and every
@@ -32,12 +35,27 @@ from torch.nn import functional as F
 from mira.agents import gemm
 from mira.shaping.factors import META_DIM
 
+D_Z = 64
+"""Factor embedding dimension d_z of the FAB (Table 1); also the TCE's input and output."""
+ID_DIM = 16
+"""Dimension of the learned per-name factor-ID embedding: enough to tell a few dozen names apart."""
+ID_SLOTS = 64
+"""Initial rows of the name → ID-embedding table (doubled when a fresh FAB needs more)."""
+FAB_HIDDEN = 64
+"""Hidden width of the per-factor embedder g_ϕ: one scalar value per factor goes in."""
+QUERY_HIDDEN = 64
+"""Hidden width of the state query Q_ϕ(s)."""
+TCE_HIDDEN = 128
+"""GRU hidden size of the Temporal Context Encoder (Table 1)."""
+VPM_HIDDEN = 128
+"""Width of the two hidden layers of the Value Potential Mapping MLP (Table 1)."""
+
 
 class FactorAttentionBlock(nn.Module):
     """FAB (ϕ): factor embedder g_ϕ, ID table, state query Q_ϕ and bilinear attention W_ϕ."""
 
-    def __init__(self, obs_dim: int, *, d_z: int = 64, id_dim: int = 16, id_slots: int = 64, hidden: int = 64,
-                 query_hidden: int = 128, meta_dim: int = META_DIM) -> None:
+    def __init__(self, obs_dim: int, *, d_z: int = D_Z, id_dim: int = ID_DIM, id_slots: int = ID_SLOTS,
+                 hidden: int = FAB_HIDDEN, query_hidden: int = QUERY_HIDDEN, meta_dim: int = META_DIM) -> None:
         super().__init__()
         self.d_z, self.id_dim, self.hidden = d_z, id_dim, hidden
         self.id_table = nn.Parameter(torch.zeros(id_slots, id_dim))
@@ -145,19 +163,14 @@ def attention_entropy(alpha: torch.Tensor) -> torch.Tensor:
 
 
 class ValuePotential(nn.Module):
-    """VPM (φ): ``Φ(s) = MLP([v ; P(s)])`` with two hidden layers (ReLU)."""
+    """VPM (φ): ``Φ(s) = MLP(v)`` with two hidden layers (ReLU)."""
 
-    def __init__(self, d_z: int, obs_dim: int, *, hidden: int = 128, state_proj: bool = False,
-                 state_proj_dim: int = 32) -> None:
+    def __init__(self, d_z: int = D_Z, *, hidden: int = VPM_HIDDEN) -> None:
         super().__init__()
-        self.state_proj = nn.Linear(obs_dim, state_proj_dim) if state_proj else None
-        in_dim = d_z + (state_proj_dim if state_proj else 0)
-        self.mlp = nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+        self.mlp = nn.Sequential(nn.Linear(d_z, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
                                  nn.Linear(hidden, 1))
 
-    def forward(self, v: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
-        if self.state_proj is not None:
-            v = torch.cat([v, torch.tanh(self.state_proj(obs))], dim=-1)
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
         first, second, out = self.mlp[0], self.mlp[2], cast(nn.Linear, self.mlp[4])
         h = F.relu(second(F.relu(first(v))))
         # The width-1 output layer as a matrix-vector product: a GEMM with one output column is
@@ -171,7 +184,7 @@ def _transposed_copy(w: torch.Tensor) -> torch.Tensor:
 
 
 class FrozenPotential:
-    """Φ(s) = ``unit · vpm(fab(x, o, ids, meta)[0], o)`` from *raw* factor values ``f`` and states ``obs``,
+    """Φ(s) = ``unit · vpm(fab(x, o, ids, meta)[0])`` from *raw* factor values ``f`` and states ``obs``,
     with ``x = clamp(f · f_inv + f_shift, ±clip)`` and likewise ``o``: the shaping of sampled batches,
     without a gradient, with every parameter-only product precomputed.
 
@@ -190,7 +203,7 @@ class FrozenPotential:
                  o_shift: torch.Tensor | None = None, o_inv: torch.Tensor | None = None,
                  clip: float = math.inf, unit: float = 1.0) -> None:
         self.k = int(ids.shape[0])
-        self.exact = vpm.state_proj is not None or self.k == 0  # these take the modules' own forward
+        self.exact = self.k == 0  # no factors: the modules' own forward (v = 0)
         # Copies, like every tensor below: the modules may be trained (on another thread) while this
         # keeps evaluating the potential they had when it was built.
         self.modules = (copy.deepcopy(fab), copy.deepcopy(vpm)) if self.exact else None
@@ -227,7 +240,7 @@ class FrozenPotential:
         if self.exact:
             assert self.modules is not None
             fab_copy, vpm_copy = self.modules
-            return vpm_copy(fab_copy(x, o, self.ids, self.meta)[0], o) * self.unit
+            return vpm_copy(fab_copy(x, o, self.ids, self.meta)[0]) * self.unit
         # Factor-major [K, B, H], as in FactorAttentionBlock.forward; x made contiguous first (the
         # broadcast multiply-add reads a transposed [B, K] operand at half speed).
         h = F.silu(torch.addcmul(self.shift, x.t().contiguous().unsqueeze(-1), self.scale), inplace=True)
@@ -246,7 +259,7 @@ class FrozenPotential:
 class TemporalContextEncoder(nn.Module):
     """TCE (ψ): a GRU over the previous aggregations of the episode that predicts the current one."""
 
-    def __init__(self, d_z: int, *, hidden: int = 128) -> None:
+    def __init__(self, d_z: int = D_Z, *, hidden: int = TCE_HIDDEN) -> None:
         super().__init__()
         self.gru = nn.GRU(d_z, hidden, batch_first=True)
         self.head = nn.Linear(hidden, d_z)

@@ -21,8 +21,17 @@ from dataclasses import dataclass
 
 import torch
 
-from mira.shaping.config import HarsConfig
 from mira.shaping.networks import TemporalContextEncoder, attention_entropy
+
+ALIGN_WEIGHT = 1.0
+"""λ of eq. (10), the weight of L_align (Table 1)."""
+AUX_WEIGHT = 0.1
+"""μ of eq. (10), the weight of the TCE's L_aux (Table 1)."""
+TERMINAL_WEIGHT = 0.1
+"""η of eq. (11), the penalty η·E[Φ(s_T)²] on true terminal states (the paper only asks η > 0)."""
+ENTROPY_WEIGHT = 1e-3
+"""β, the weight of the attention entropy bonus: small, it only keeps α from collapsing onto one factor
+early."""
 
 
 @dataclass
@@ -62,14 +71,14 @@ def temporal_loss(tce: TemporalContextEncoder, v: torch.Tensor, v_ctx: torch.Ten
     return (err * has_past).sum() / has_past.sum().clamp_min(1.0)
 
 
-def hars_objective(config: HarsConfig, tce: TemporalContextEncoder, *, phi: torch.Tensor, v: torch.Tensor,
+def hars_objective(tce: TemporalContextEncoder, *, phi: torch.Tensor, v: torch.Tensor,
                    alpha: torch.Tensor, v_ctx: torch.Tensor | None, ctx_valid: torch.Tensor | None,
                    reward: torch.Tensor, terminated: torch.Tensor, gamma: float, unit: float) -> ObjectiveTerms:
     """The objective on one batch from the forward over its ``[s; s′]`` (``phi``, ``v``, ``alpha`` are
     ``[2B]``, ``[2B, d_z]``, ``[2B, K]``) and the TCE windows of its first rows (``v_ctx``)."""
     b = reward.shape[0]
-    l_align, l_td, target = alignment_loss(phi[:b], phi[b:], reward, terminated, gamma, unit, config.terminal_weight)
+    l_align, l_td, target = alignment_loss(phi[:b], phi[b:], reward, terminated, gamma, unit, TERMINAL_WEIGHT)
     entropy = attention_entropy(alpha).mean()
     l_aux = temporal_loss(tce, v, v_ctx, ctx_valid)
-    loss = config.align_weight * l_align + config.aux_weight * l_aux - config.entropy_weight * entropy
+    loss = ALIGN_WEIGHT * l_align + AUX_WEIGHT * l_aux - ENTROPY_WEIGHT * entropy
     return ObjectiveTerms(loss, l_align, l_td, l_aux, entropy, target)

@@ -26,12 +26,22 @@ import torch
 
 from mira.agents.networks import AdamStepper, make_adam
 from mira.replay import Batch
+from mira.shaping.columns import RECOMPUTE_CHUNK
 from mira.shaping.config import HarsConfig
 from mira.shaping.factors import FactorMeta, FactorSource, meta_features
-from mira.shaping.networks import FactorAttentionBlock, FrozenPotential, TemporalContextEncoder, ValuePotential
+from mira.shaping.networks import (
+    ID_SLOTS,
+    FactorAttentionBlock,
+    FrozenPotential,
+    TemporalContextEncoder,
+    ValuePotential,
+)
 from mira.shaping.objective import hars_objective
 
 STD_FLOOR = 1e-4
+INPUT_CLIP = 10.0
+"""Normalised factor values and observations are clipped to ±this before entering the networks: a
+rare outlier state (a fall, a factor's spike) cannot saturate them."""
 
 
 @dataclass
@@ -98,10 +108,9 @@ class PotentialNetworks:
 
     def bind(self, obs_dim: int, device: torch.device, seed: int, inputs: Callable[[], InputSnapshot]) -> None:
         """Create ψ (the TCE outlives programs); ϕ and φ come with :meth:`build`."""
-        cfg = self.config
         self.obs_dim, self.device, self.seed, self._inputs = obs_dim, device, seed, inputs
         with seeded(name_seed(seed, "tce")):
-            self.tce = TemporalContextEncoder(cfg.d_z, hidden=cfg.tce_hidden).to(device)
+            self.tce = TemporalContextEncoder().to(device)
 
     def install(self, phi_names: Sequence[str], meta: Mapping[str, FactorMeta]) -> None:
         """Point the networks' inputs at a program's PHI factors (slots, static metadata)."""
@@ -114,25 +123,22 @@ class PotentialNetworks:
 
     def build(self, keep_tce_state: bool) -> None:
         """Fresh FAB (ϕ) and VPM (φ) and a fresh optimiser (keeping ψ's Adam state if asked)."""
-        cfg = self.config
-        slots = cfg.id_slots
+        slots = ID_SLOTS
         while slots < len(self.slots):
             slots *= 2
         with seeded(name_seed(self.seed, "phi", self.generation)):
-            fab = FactorAttentionBlock(self.obs_dim, d_z=cfg.d_z, id_dim=cfg.id_dim, id_slots=slots,
-                                       hidden=cfg.fab_hidden, query_hidden=cfg.query_hidden)
-            vpm = ValuePotential(cfg.d_z, self.obs_dim, hidden=cfg.vpm_hidden, state_proj=cfg.vpm_state_proj,
-                                 state_proj_dim=cfg.state_proj_dim)
+            fab = FactorAttentionBlock(self.obs_dim, id_slots=slots)
+            vpm = ValuePotential()
         with torch.no_grad():
             # Each name's initial ID embedding depends on the name (and seed, generation) only, not on
             # its slot, so a fresh FAB gives the same Φ whatever the order the factors are listed in.
             for name, slot in self.slots.items():
                 gen = torch.Generator().manual_seed(name_seed(self.seed, "id", self.generation, name))
-                fab.id_table[slot] = torch.randn(cfg.id_dim, generator=gen)
+                fab.id_table[slot] = torch.randn(fab.id_dim, generator=gen)
         self.fab, self.vpm = fab.to(self.device), vpm.to(self.device)
         old = getattr(self, "opt", None)
         params = [*self.fab.parameters(), *self.vpm.parameters(), *self.tce.parameters()]
-        self.opt = make_adam(params, cfg.lr)
+        self.opt = make_adam(params, self.config.lr)
         self._stepper = AdamStepper(self.opt)  # the same fused Adam step without Optimizer.step's Python
         if keep_tce_state and old is not None:
             for p in self.tce.parameters():
@@ -181,7 +187,7 @@ class PotentialNetworks:
             f_shift, f_inv, meta, o_shift, o_inv = self.norm()
             self._frozen = FrozenPotential(self.fab, self.vpm, self.fab.ids(self.slot_t).detach(), meta,
                                            f_shift=f_shift, f_inv=f_inv, o_shift=o_shift, o_inv=o_inv,
-                                           clip=self.config.input_clip, unit=self.unit())
+                                           clip=INPUT_CLIP, unit=self.unit())
         return self._frozen
 
     def forward(self, f: torch.Tensor, obs: torch.Tensor, norm: tuple[torch.Tensor, ...],
@@ -190,14 +196,14 @@ class PotentialNetworks:
         """Φ ``[n_phi]``, v ``[N, d_z]`` and α ``[N, K]`` from raw factor values and raw observations
         (Φ only for the first ``n_phi`` rows, default all)."""
         f_shift, f_inv, meta, o_shift, o_inv = norm
-        c = self.config.input_clip
+        c = INPUT_CLIP
         x = torch.addcmul(f_shift, f, f_inv).clamp_(-c, c)
         o = torch.addcmul(o_shift, obs, o_inv).clamp_(-c, c)
         v, alpha = self.fab(x, o, self.fab.ids(self.slot_t) if ids is None else ids, meta)
         scale = self.unit()
         if n_phi is None:
-            return self.vpm(v, o) * scale, v, alpha
-        return self.vpm(v[:n_phi], o[:n_phi]) * scale, v, alpha
+            return self.vpm(v) * scale, v, alpha
+        return self.vpm(v[:n_phi]) * scale, v, alpha
 
     # -------------------------------------------------------------------------- training step
     def train_step(self, pending: Pending, gamma: float, unit: float, last_l_aux: torch.Tensor
@@ -205,10 +211,9 @@ class PotentialNetworks:
         """One optimiser step of eq. (10) on the pending batch; returns the step's figures and the latest
         L_aux. Reads only its arguments, the networks and their optimiser, so it may run on another
         thread while the agent updates."""
-        cfg = self.config
         batch = pending.batch
         b = batch.reward.shape[0]
-        terms = hars_objective(cfg, self.tce, phi=pending.phi, v=pending.v, alpha=pending.alpha, v_ctx=pending.v_ctx,
+        terms = hars_objective(self.tce, phi=pending.phi, v=pending.v, alpha=pending.alpha, v_ctx=pending.v_ctx,
                                ctx_valid=pending.ctx_valid, reward=pending.base, terminated=batch.terminated,
                                gamma=gamma, unit=unit)
         if pending.v_ctx is not None:
@@ -218,9 +223,6 @@ class PotentialNetworks:
             # The critic's loss is quadratic in reward units: σ_R² brings it to the alignment loss's units.
             loss = loss + (pending.leaf.grad * pending.phi).sum() / (unit * unit)
         loss.backward()
-        if cfg.max_grad_norm is not None:
-            torch.nn.utils.clip_grad_norm_([p for g in self.opt.param_groups for p in g["params"]],
-                                           cfg.max_grad_norm)
         self._stepper.step()
         self._stepper.zero_grad()
         with torch.no_grad():
@@ -229,7 +231,7 @@ class PotentialNetworks:
                 "phi_mean": phi_d.mean(),
                 "phi_std": phi_d.std(unbiased=False),
                 "l_align": terms.l_align.detach(),
-                "l_aux": last_l_aux,  # the latest computed value (L_aux runs every tce_every)
+                "l_aux": last_l_aux,  # the latest computed value (L_aux runs every TCE_EVERY-th step)
                 "attn_entropy": terms.entropy.detach(),
                 "rpe": terms.l_td.detach() * unit * unit / (terms.target.var(unbiased=False) + 1e-8),
             }
@@ -239,7 +241,7 @@ class PotentialNetworks:
 
     # ----------------------------------------------------------------- Φ of raw observations
     def _chunks(self, n: int) -> Iterator[slice]:
-        step = max(1, self.config.recompute_chunk)
+        step = RECOMPUTE_CHUNK
         for start in range(0, n, step):
             yield slice(start, min(n, start + step))
 
@@ -287,7 +289,7 @@ class PotentialNetworks:
                         for j, n in enumerate(names)], dtype=np.float64)
         meta = meta_features(names, candidate.meta, mean, std)
         known = self.fab.ids(self.slot_t)
-        fallback = known.mean(0) if known.shape[0] else torch.zeros(self.config.id_dim, device=self.device)
+        fallback = known.mean(0) if known.shape[0] else torch.zeros(self.fab.id_dim, device=self.device)
         ids = torch.stack([known[pos[n]] if n in pos else fallback for n in names]) if names else known[:0]
         norm = (*self._affine(mean, std), self._tensor(meta), o_shift, o_inv)
         out = []

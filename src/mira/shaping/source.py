@@ -25,12 +25,13 @@ so the trainer hands a whole cycle's batches over together (``lookahead`` / ``re
 training batch is due: that batch is shaped with a graph, the others by a :class:`FrozenPotential`
 built once, in one forward pass. The step taken on a cycle's training batch lands at the next cycle's
 training batch (or when Φ is read earlier: the monitor, a checkpoint, a program change; see ``sync``),
-which is what lets ``train_in_background`` run it, and the cycle's no-grad shaping pass, on a second
-thread while the agent updates. Where the step runs changes nothing in the computation
-(``tests/test_shaping_e2e.py`` checks bit for bit). r̂ changes only at episode ends (``revision``).
+which is what lets it run, with the cycle's no-grad shaping pass, on a second thread while the agent
+updates (when a core is free for it, see ``HarsReward.background``). Where the step runs changes
+nothing in the computation (``tests/test_shaping_e2e.py`` checks bit for bit). r̂ changes only at
+episode ends (``revision``).
 
-Joint objective (eq. 10). With ``joint=True`` and κ ≠ 0 the reward handed to the agent carries gradient
-into (ϕ, φ): the critic's TD loss L_RL is minimised over the shaping parameters as well. Rather than
+Joint objective (eq. 10). With κ ≠ 0 the reward handed to the agent carries gradient into (ϕ, φ): the
+critic's TD loss L_RL is minimised over the shaping parameters as well. Rather than
 letting the agent's ``backward`` walk the HARS graph, the reward is built from a detached leaf copy of
 Φ; the agent's backward deposits ∂L_RL/∂Φ on that leaf, and the training step backpropagates
 ``objective + ⟨∂L_RL/∂Φ, Φ⟩`` through the HARS graph once: by the chain rule exactly the gradient of
@@ -66,10 +67,19 @@ from mira.shaping.networks import FrozenPotential
 from mira.shaping.potential import Pending, PotentialNetworks
 
 BASE_LOG_FIELDS = ("phi_mean", "phi_std", "l_align", "l_aux", "attn_entropy", "rpe")
+TCE_WINDOW = 8
+"""Consecutive same-episode steps a TCE window spans (the last one is the target): a short history,
+enough to predict the next aggregation."""
+TCE_BATCH = 32
+"""Sampled rows whose windows feed L_aux when it is computed: a sample of the batch keeps the GRU's
+chain of small sequential ops cheap."""
+TCE_EVERY = 4
+"""Compute L_aux (and step ψ) on every this many HARS training steps: the auxiliary signal at a fraction
+of its cost (Algorithm 3 computes it on every step)."""
 
 
-def _log_fields(config: HarsConfig, factors: FactorSource) -> tuple[str, ...]:
-    head = head_log_fields(list(factors.phi_names), list(factors.aux_names), config.decompose_phi_at)
+def _log_fields(factors: FactorSource) -> tuple[str, ...]:
+    head = head_log_fields(list(factors.phi_names), list(factors.aux_names))
     return (*BASE_LOG_FIELDS, *(f"attn_{n}" for n in factors.phi_names), *head)
 
 
@@ -130,7 +140,7 @@ def _forward_with_graph(nets: PotentialNetworks, columns: FactorColumns, batch: 
     """The forward a training batch is shaped with: Φ at [s; s′] with its graph (and, with ``n_ctx`` > 0,
     the TCE windows' aggregations), kept for the training step. With ``joint`` the agent's reward is
     built on a detached leaf copy of Φ, where the critic's backward leaves ∂L_RL/∂Φ (module docstring)."""
-    b, window, device = batch.reward.shape[0], nets.config.tce_window, nets.device
+    b, window, device = batch.reward.shape[0], TCE_WINDOW, nets.device
     f, obs, valid = _network_inputs(columns, batch, n_ctx, window, device)
     phi, v_all, alpha_all = nets.forward(f.to(device), obs, nets.norm(), n_phi=2 * b)
     leaf = phi.detach().requires_grad_(True) if joint else None
@@ -152,15 +162,19 @@ class HarsReward(LookaheadSource):
     name = "hars"
     log_fields: tuple[str, ...] = BASE_LOG_FIELDS
 
-    def __init__(self, factors: FactorSource, config: HarsConfig | None = None) -> None:
+    def __init__(self, factors: FactorSource, config: HarsConfig | None = None, *,
+                 background: bool | None = None) -> None:
         self.config = config or HarsConfig()
-        background = self.config.train_in_background
         self.background = _has_spare_core() if background is None else bool(background)
-        """Whether training steps and shaping passes run on the training thread (see HarsConfig)."""
+        """Whether each training step of (ϕ, φ, ψ) and each cycle's no-grad shaping pass run on a second
+        (training) thread beside the agent's updates. The step lands at the next training update either
+        way, so the run is the same computation, bit for bit, whatever this is. ``background`` None
+        (what a run uses): on when a core is free for it (see :func:`_has_spare_core`; otherwise the
+        thread would wait for a core, or take one from another run); False: all on the caller's thread."""
         self.factors: FactorSource = factors
         self.nets = PotentialNetworks(self.config)
         self.nets.assign_slots(factors.phi_names)
-        self.log_fields = _log_fields(self.config, factors)
+        self.log_fields = _log_fields(factors)
         self.kappa = self.config.kappa()
         """κ, the PBRS term's weight in the agent's reward (see HarsConfig.shaping_weight)."""
         if self.config.alignment not in ("decomposed", "episodic"):
@@ -180,7 +194,7 @@ class HarsReward(LookaheadSource):
         self.gamma = float(ctx.gamma)
         self.device = ctx.device
         self.obs_dim = int(ctx.obs_dim)
-        self.memory = FactorMemory(self.config, ctx.buffer, self.obs_dim)
+        self.memory = FactorMemory(ctx.buffer, self.obs_dim)
         self._last_l_aux = torch.zeros((), device=self.device)
         self.nets.bind(self.obs_dim, self.device, ctx.seed, self.memory.input_snapshot)
         self._install(self.factors)
@@ -190,7 +204,7 @@ class HarsReward(LookaheadSource):
     def _install(self, factors: FactorSource, recompute: bool = False) -> None:
         """Point the source at ``factors``: names, columns and r̂ (recomputed from the stored transitions
         with ``recompute``), the networks' inputs."""
-        self.factors, self.log_fields = factors, _log_fields(self.config, factors)
+        self.factors, self.log_fields = factors, _log_fields(factors)
         self.phi_names, self.aux_names = list(factors.phi_names), list(factors.aux_names)
         self.memory.install(factors, recompute)
         self.columns, self.decomposed = self.memory.columns, self.memory.decomposed
@@ -238,17 +252,16 @@ class HarsReward(LookaheadSource):
         if not (torch.is_grad_enabled() and self._trains_now()):
             return resolve(self._shape_frozen([batch])[0])
         self.sync()  # this batch is shaped, with a graph, by the latest weights
-        with_tce = cfg.aux_weight > 0 and cfg.tce_window >= 2 and self.updates % max(1, cfg.tce_every) == 0
+        with_tce = self.updates % TCE_EVERY == 0
         if with_tce:
             self.columns.flush()  # the windows read rows before the batch's
         else:
             self.columns.ensure(batch.indices)
-        n_ctx = (b if cfg.tce_batch is None else min(b, cfg.tce_batch)) if with_tce else 0
+        n_ctx = min(b, TCE_BATCH) if with_tce else 0
         # What Φ is aligned to and the agent's reward is built on: r̂, or r_ext (episodic alignment).
         base = batch.reward if cfg.alignment == "episodic" else \
             self.decomposed.of_rows(torch.from_numpy(batch.indices)).to(batch.reward.device)
-        self._pending = _forward_with_graph(self.nets, self.columns, batch, base, n_ctx,
-                                            joint=cfg.joint and self.kappa != 0.0)
+        self._pending = _forward_with_graph(self.nets, self.columns, batch, base, n_ctx, joint=self.kappa != 0.0)
         if self.kappa == 0.0:
             return base
         phi = self._pending.leaf if self._pending.leaf is not None else self._pending.phi.detach()
@@ -266,7 +279,7 @@ class HarsReward(LookaheadSource):
         """The batches of the updates until the next training step: the first with a graph when it is
         the training batch, the others in one no-grad pass of Φ, which costs much less than a forward
         per batch (fewer dispatches, and the agent's updates in between no longer evict Φ's data each
-        time). With ``train_in_background`` that pass runs on the training thread, while the agent
+        time). With ``background`` that pass runs on the training thread, while the agent
         updates on the first batch, and the rewards after the first are Futures."""
         if not batches:
             return []
@@ -313,7 +326,7 @@ class HarsReward(LookaheadSource):
         The step lands (its weights start shaping, its figures are reported) at the next training
         update, or earlier when Φ is read (:meth:`sync`); until then the batches are shaped by the
         potential that shaped this one. That is what lets the step run on a second thread
-        (``HarsConfig.train_in_background``) beside the agent's next updates, and it is the same
+        (``background``) beside the agent's next updates, and it is the same
         computation either way. The figures returned are those of the latest step that landed.
         """
         if not self._trains_now():
@@ -365,7 +378,7 @@ class HarsReward(LookaheadSource):
         if not self._bound:  # before training: nothing to re-initialise yet
             self.factors = factors
             self.nets.assign_slots(factors.phi_names)
-            self.log_fields = _log_fields(self.config, factors)
+            self.log_fields = _log_fields(factors)
             return
         self.sync()
         self.nets.generation += 1

@@ -45,10 +45,13 @@ def make_hars(
     gamma: float = 0.99,
     config: HarsConfig | None = None,
     card: TaskCard | None = None,
+    background: bool | None = None,
 ) -> tuple[HarsReward, ReplayBuffer]:
-    """A HARS source bound to an empty buffer of ``capacity`` rows (CPU)."""
+    """A HARS source bound to an empty buffer of ``capacity`` rows (CPU); ``background`` as in
+    :class:`HarsReward`."""
     buf = ReplayBuffer(capacity, obs_dim, act_dim)
-    src = HarsReward(factors if factors is not None else toy_factors(), config or HarsConfig())
+    src = HarsReward(factors if factors is not None else toy_factors(), config or HarsConfig(),
+                     background=background)
     src.bind(RewardContext(card or load_task("halfcheetah", check_env=False), obs_dim, act_dim, gamma,
                            torch.device("cpu"), buf, seed, Path(".")))
     return src, buf

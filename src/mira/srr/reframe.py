@@ -4,15 +4,14 @@ Each candidate passes, in order, the parser (schema and factor model), static in
 sandbox realizability (real states, separate process, limits it cannot lift) and proxy efficacy (ROC-AUC
 > 0.5 with permutation p < 0.05 on value-quantile labels, and J_SRR > 0) or, where the stored episodes
 are at hand, return explanation (the candidate's out-of-sample R² of the episodic returns above the
-current program's by ``min_r2_gain``: the test a structural repair can pass, see
-:mod:`mira.shaping.attribution`). Where the returns are at hand they also veto: a candidate whose R²
-is below the current program's by more than ``max_r2_loss`` (or, for a program that explains the returns
-almost exactly, by more than ``max_unexplained_growth`` times what it leaves unexplained) is refused
-whatever its proxy test says
-(the AUC labels come from the current program, the returns from the task). The best passing candidate
-(by R² gain, then J_SRR) is accepted; if none passes, SRR abstains and the caller backs off. A failing
-LLM is a recorded, failed intervention — never a crash. Every step is written into the intervention's
-folder as it happens.
+current program's by ``MIN_R2_GAIN``: the test a structural repair can pass, see
+:mod:`mira.shaping.attribution`, where these thresholds live). Where the returns are at hand they also
+veto: a candidate whose R² is below the current program's by more than ``MAX_R2_LOSS`` (or, for a
+program that explains the returns almost exactly, by more than ``MAX_UNEXPLAINED_GROWTH`` times what it
+leaves unexplained) is refused whatever its proxy test says (the AUC labels come from the current
+program, the returns from the task). The best passing candidate (by R² gain, then J_SRR) is accepted;
+if none passes, SRR abstains and the caller backs off. A failing LLM is a recorded, failed intervention —
+never a crash. Every step is written into the intervention's folder as it happens.
 """
 
 from __future__ import annotations
@@ -34,12 +33,19 @@ from mira.factors.program import FactorProgram, ProgramParseError, code_diff
 from mira.llm.base import LLMBackend, LLMError
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.runio.failpoints import failpoint
+from mira.shaping.attribution import MAX_R2_LOSS, MAX_UNEXPLAINED_GROWTH, MIN_R2_GAIN
 from mira.srr.config import SRRConfig
 from mira.srr.efficacy import proxy_efficacy
-from mira.srr.hypotheses import METRICS, EditSurrogate, complexity, rule_hypotheses
+from mira.srr.hypotheses import METRICS, OPERATORS, EditSurrogate, complexity, rule_hypotheses
 from mira.tasks.card import TaskCard
 
 log = logging.getLogger(__name__)
+
+PERMUTATIONS = 1000
+"""Permutations of the AUC and Spearman tests: resolves p-values down to 1/1001, well below ``max_p_value``."""
+LABEL_QUANTILES = (0.3, 0.7)
+"""States at or below the first value quantile are negatives, at or above the second positives: the middle
+40%, whose ranking is noise, is left out."""
 
 ProxyPotential = Callable[[FactorProgram, np.ndarray], np.ndarray]
 """``proxy(program, obs[N, obs_dim]) -> Φ̃[N]``: a candidate's PHI factors through the frozen FAB/VPM."""
@@ -74,8 +80,12 @@ class Reframer:
         action_dim: int,
         surrogate: EditSurrogate | None = None,
         followups: int = 0,
+        *,
+        permutations: int | None = None,
     ) -> None:
+        """``permutations``: of the efficacy tests (None: :data:`PERMUTATIONS`; fewer make tests fast)."""
         self.config = config
+        self.permutations = PERMUTATIONS if permutations is None else permutations
         self.followups = followups
         self.refused: list[dict[str, Any]] = []
         """The last intervention's refused candidates and why: the next prompt tells the model."""
@@ -106,7 +116,7 @@ class Reframer:
         hypotheses = rule_hypotheses(evidence.d, poor) if evidence.guided and evidence.cause == "anomaly" else []
         atomic_write_json(folder / "evidence.json", {**evidence.as_dict(),
                                                      "hypotheses": [h.as_dict() for h in hypotheses]})
-        request = build_srr_request(self.card, program, evidence, hypotheses, cfg.max_candidates, cfg.operators,
+        request = build_srr_request(self.card, program, evidence, hypotheses, cfg.max_candidates, OPERATORS,
                                     self.action_dim, self.refused)
         atomic_write_json(folder / "request.json", request.to_dict())
 
@@ -200,8 +210,8 @@ class Reframer:
         except Exception as exc:  # a proxy failure rejects the candidate, it never stops training
             cand.verdicts["rejected"] = f"proxy potential failed: {type(exc).__name__}: {exc}"
             return False, None
-        lo, hi = cfg.label_quantiles
-        eff = proxy_efficacy(phi, values, lo_q=lo, hi_q=hi, n_perm=cfg.permutations, seed=seed)
+        lo, hi = LABEL_QUANTILES
+        eff = proxy_efficacy(phi, values, lo_q=lo, hi_q=hi, n_perm=self.permutations, seed=seed)
         code_growth = sum(len(f.code) for f in cand.program.factors) - sum(len(f.code) for f in current.factors)
         comp = complexity(len(cand.operators), len(cand.program.factors) - len(current.factors), code_growth)
         j_srr = self.surrogate.score(cand.operators, direction, comp)
@@ -213,8 +223,8 @@ class Reframer:
         if explain is not None and base_r2 is not None and np.isfinite(base_r2):
             r2 = _safe_r2(explain, cand.program)
             gain = r2 - base_r2
-            explains = bool(np.isfinite(gain) and gain >= cfg.min_r2_gain)
-            allowed = allowed_r2_loss(base_r2, cfg.max_r2_loss, cfg.max_unexplained_growth)
+            explains = bool(np.isfinite(gain) and gain >= MIN_R2_GAIN)
+            allowed = allowed_r2_loss(base_r2, MAX_R2_LOSS, MAX_UNEXPLAINED_GROWTH)
             harms = bool(np.isfinite(gain) and gain < -allowed)
             cand.verdicts["returns"] = {"cv_r2": r2, "current_cv_r2": base_r2, "gain": gain,
                                         "allowed_loss": allowed, "passed": explains, "harms": harms}
@@ -230,7 +240,7 @@ class Reframer:
                                          f"(needs AUC > {cfg.min_auc}, p < {cfg.max_p_value}, J_SRR > 0)"
                                          + ("" if "returns" not in cand.verdicts else
                                             f"; return R² gain {cand.verdicts['returns']['gain']:+.3f} "
-                                            f"(or at least {cfg.min_r2_gain})"))
+                                            f"(or at least {MIN_R2_GAIN})"))
         return ok or explains, j_srr
 
     def _admit_reply(self, text: str, current: FactorProgram, sandbox_obs: np.ndarray,
