@@ -70,12 +70,35 @@ def _why(evidence: dict[str, Any]) -> str:
         return (f"the returns show a structural flaw: the program's factors explain the episodic returns out of "
                 f"sample with R² {att['program_cv_r2']:.2f}, with {shape} added {top['cv_r2']:.2f} "
                 f"({top['gain']:+.2f})")
+    plateau = evidence.get("plateau")
+    if evidence.get("cause") == "plateau" and plateau:
+        return (f"learning had stalled: the held-out return's median {plateau['recent_median']:.6g} against "
+                f"{plateau['previous_median']:.6g} before ({100 * plateau['rise']:+.1f}%), the episodes settled at "
+                f"{plateau['feature']} = {plateau['center']:.4g} ± {plateau['halfwidth']:.3g}")
     if evidence.get("cause", "anomaly") == "anomaly" and evidence.get("guided", True) \
             and evidence.get("contributors"):
         why = "; ".join(f"{c['reading']} ({str(c['metric']).upper()} = {c['value']:.2f})"
                         for c in evidence["contributors"])
         return f"the monitor flagged a persistent anomaly (S = {_fmt(evidence.get('score'))}): {why}"
     return "periodic review without diagnostic evidence (no-MCM ablation)"
+
+
+def _plateau_lines(run: Path) -> list[str]:
+    """The plateau detector's reports and each escape's probation (``plateau.csv``)."""
+    rows = read_csv(run / "plateau.csv")
+    lines = []
+    for r in rows:
+        rise = 100 * float(r["rise"])
+        if r["event"] == "plateau":
+            lines.append(f"Plateau at step {r['step']}: held-out return {float(r['median']):.6g} against "
+                         f"{float(r['before']):.6g} ({rise:+.1f}%), episodes settled at {r['feature']} = "
+                         f"{float(r['center']):.4g} ± {float(r['halfwidth']):.3g}.")
+        else:
+            kept = r["event"] == "escape_kept"
+            lines.append(f"Escape judged at step {r['step']}: held-out return {float(r['median']):.6g} against the "
+                         f"plateau's {float(r['before']):.6g} ({rise:+.1f}%): "
+                         + ("kept." if kept else f"rolled back (program v{r['version']})."))
+    return lines
 
 
 def _factor_codes(path: Path) -> dict[str, str]:
@@ -249,6 +272,7 @@ def explain(run_dir: str | Path) -> str:
                          f"with R² {found.r2_with:.2f} instead of {found.r2:.2f})"
                          + ("; this method has no SRR, so the diagnosis was logged and nothing was installed."
                             if cfg.get("method") == "mira-no-srr" else "."))
+    lines += _plateau_lines(run)
     interventions = sorted((run / "interventions").glob("*/decision.json"))
     if not interventions and (run / "interventions").exists():
         lines.append("No intervention was made.")
@@ -283,6 +307,8 @@ def explain(run_dir: str | Path) -> str:
             returns = verdicts.get("returns")
             if returns:
                 figures += f", return R² {returns['cv_r2']:.2f} ({returns['gain']:+.2f})"
+            if verdicts.get("shaping"):
+                figures = "shaping term (outside the fitted reward): bounded on the held-out states"
             verdict = verdicts.get("rejected") or "passed"
             lines.append(f"  candidate {c['index']} [{ops}]: {figures}; {verdict}")
         if decision.get("accepted"):

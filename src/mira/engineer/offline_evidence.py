@@ -47,6 +47,9 @@ class RequestContext:
     ('value' or 'neg_square'), gain, share, cv_r2, range}`` (see :mod:`mira.shaping.attribution`)."""
     program_r2: float | None = None
     """The program's own out-of-sample R² of the returns, when the request carries it."""
+    plateau: dict[str, Any] | None = None
+    """The plateau detector's report (feature, center, halfwidth, visited range, reward per step) when the
+    request carries a well-formed one."""
 
     @property
     def poor_return(self) -> bool:
@@ -85,7 +88,7 @@ def parse_evidence(context: dict[str, Any]) -> RequestContext:
             isinstance(f, dict)
             and isinstance(f.get("name"), str)
             and isinstance(f.get("code"), str)
-            and f.get("type") in ("PHI", "AUX")
+            and f.get("type") in ("PHI", "AUX", "SHAPE")
         ):
             raise LLMRequestRejectedError(f"offline engineer: malformed factor in context['program']: {f!r}")
         factors.append(copy.deepcopy(f))
@@ -140,7 +143,24 @@ def parse_evidence(context: dict[str, Any]) -> RequestContext:
         attention=attention,
         unexplained=unexplained if guided else [],
         program_r2=program_r2 if guided else None,
+        plateau=_plateau(context.get("plateau"), names) if guided else None,
     )
+
+
+def _plateau(raw: Any, features: list[str]) -> dict[str, Any] | None:
+    """``context['plateau']`` when it names one of the card's features and carries finite figures."""
+    if not isinstance(raw, dict) or raw.get("feature") not in features:
+        return None
+    visited = raw.get("visited")
+    out: dict[str, Any] = {"feature": raw["feature"]}
+    for key in ("center", "halfwidth", "reward_per_step"):
+        out[key] = _opt_float(raw.get(key))
+    lo, hi = (_opt_float(visited[0]), _opt_float(visited[1])) if isinstance(visited, list) and len(visited) == 2 \
+        else (None, None)
+    if any(v is None for v in out.values()) or lo is None or hi is None:
+        return None
+    out["visited"] = (min(lo, hi), max(lo, hi))
+    return out
 
 
 def _attribution(raw: Any, features: list[str]) -> tuple[float | None, list[dict[str, Any]]]:

@@ -6,6 +6,9 @@ Appendix A JSON, ranked by how strongly the evidence supports each rule:
 * low/negative PVC (potential decoupled from extrinsic value) → Gate the dominant progress Φ-factor
   on a state-only posture predicate (HalfCheetah: ``v_x · (1 − tanh(α θ²))``, section 5.3.1);
   alternative: Refactor it to a heading-consistent form (``v_x cos θ``);
+* a plateau reported by the monitor's plateau detector → Add a bounded SHAPE potential that ramps up
+  from just above the band where the episodes settle (it reaches the agent as γΨ(s′) − Ψ(s), sized in
+  steps of the plateau's reward: :func:`add_escape_potential`); it outranks every other rule;
 * high RPE plateau with poor return → Add a bounded, state-only escape bonus localised at the
   stagnation band (HumanoidStandup: ``σ(α (z − z_stag)) · tanh(β v_z)``, section 5.3.2);
   back-off: Scale the largest-range factor down;
@@ -57,6 +60,11 @@ GATE_ALPHA_UPRIGHT = 4.0  # 0.5 (1 + tanh(4 (u - 0.5))): 0.98 upright, 0.5 at 60
 EXPLORE_BETA = 2.0  # tanh(2 v_z): 0.76 when rising at 0.5 m/s
 EXPLORE_ALPHA_MAX = 100.0  # keeps exp() finite over any height range a body can span
 SCALE_BACKOFF = 0.5
+ESCAPE_STEPS = 20.0
+"""The escape potential's height in steps of the plateau's reward per step: climbing out of the band pays
+about this many steps' reward at once, enough to stand out of the critic's noise, bounded whatever happens."""
+ESCAPE_RAMP_SHARE = 0.25
+"""The ramp's width as a share of the range the run has visited (at least twice the band's half-width)."""
 
 
 @dataclass
@@ -324,6 +332,28 @@ def add_escape_bonus(ev: RequestContext, why: str) -> tuple[dict, list[dict]] | 
     return _edit("Add", [name], params, why), [*copy.deepcopy(ev.factors), new]
 
 
+def add_escape_potential(ev: RequestContext) -> tuple[dict, list[dict]] | None:
+    """A SHAPE factor Ψ(s) = β · σ((z − c) / w), written with tanh: about 0 in the band where the episodes
+    settle, rising over a ramp of width w centred one w above it (c = center + w), bounded by β."""
+    p = ev.plateau
+    if p is None:
+        return None
+    feature, (lo, hi) = str(p["feature"]), p["visited"]
+    width = max(2.0 * float(p["halfwidth"]), ESCAPE_RAMP_SHARE * (hi - lo), 1e-3)
+    center, beta = float(p["center"]) + width, ESCAPE_STEPS * max(abs(float(p["reward_per_step"])), 1e-6)
+    expr = f"{num(beta / 2.0)} * (1.0 + np.tanh((s.{feature} - {num(center)}) / {num(2.0 * width)}))"
+    band = f"{feature} = {num(float(p['center']))} ± {num(float(p['halfwidth']))}"
+    name = _fresh_name(ev, "psi_escape")
+    new = make_factor(name, "SHAPE", expr, units="1", range_hint=format_range(0.0, beta),
+                      doc=f"escape potential above the band {band} where the policy settles: a ramp of width "
+                      f"{num(width)} up to {num(beta)} ({ESCAPE_STEPS:g} steps of the plateau's reward)")
+    why = (f"plateau: the held-out return is flat and the episodes settle at {band}; a bounded potential above "
+           "the band turns it into a ramp (shaping outside the fitted reward, so it keeps its size)")
+    params = {"new_factor": name, "type": "SHAPE", "feature": feature, "ramp_center": center, "ramp_width": width,
+              "height": beta, "code": new["code"]}
+    return _edit("Add", [name], params, why), [*copy.deepcopy(ev.factors), new]
+
+
 def add_bridge(ev: RequestContext, why: str) -> tuple[dict, list[dict]] | None:
     """Without a localised band: a bounded, state-only bridge on rising (or forward) motion."""
     size = _phi_scale(ev)
@@ -534,6 +564,9 @@ def propose(context: dict[str, Any]) -> dict[str, Any]:
     ev = parse_evidence(context)
     ranked: list[RankedEdit] = []
     order = 0
+    escape = add_escape_potential(ev) if "Add" in ev.allowed else None
+    if escape is not None:  # the plateau detector's report is why this request was made: that is the answer
+        return {"candidates": [RankedEdit(escape[0], escape[1], 0.0, 0).to_json()], "engineer": OFFLINE_ENGINEER_LABEL}
     for edit, factors in add_unexplained(ev) if "Add" in ev.allowed else []:
         # Evidence that the program cannot express the returns outranks every diagnostic rule.
         ranked.append(RankedEdit(edit, factors, 1000.0 - order, order))

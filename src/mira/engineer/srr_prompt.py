@@ -26,7 +26,7 @@ OPERATOR_DOCS = {
              'params: {"predicate": "the predicate as an expression over s"}'),
     "Refactor": ("Refactor: rewrite a factor as an equivalent but loophole-averse expression. params: {} "
                  "(the new code is the factor's entry in updated_factors)"),
-    "Add": ('Add: introduce a new physically meaningful signal. params: {"type": "PHI" | "AUX"} '
+    "Add": ('Add: introduce a new physically meaningful signal. params: {"type": "PHI" | "AUX" | "SHAPE"} '
             "(targets: the new factor's name; its code is in updated_factors)"),
     "Prune": "Prune: remove an ineffective, redundant or detrimental factor. params: {} (targets: the factors removed)",
 }
@@ -40,6 +40,10 @@ TRIGGERS = {
                    "program's factors cannot (RETURNS_THE_PROGRAM_CANNOT_EXPLAIN below): the program misses, or "
                    "misshapes, something the task pays for."),
     "periodic": "TRIGGER: a periodic review; no diagnostic evidence is given.",
+    "plateau": ("TRIGGER: the monitor's plateau detector. The held-out return has stopped rising and the evaluation "
+                "episodes settle in a narrow band of one state feature (PLATEAU below): the policy is stuck where "
+                "the program's reward already explains its returns, so a missing feature is not the problem; a way "
+                "out of the band is."),
 }
 """Why SRR was called, in the words of the prompt (:attr:`Evidence.cause`)."""
 
@@ -47,7 +51,10 @@ FACTOR_USAGE = (
     "HOW THE FACTORS ARE USED: the environment pays only at the end of an episode. The per-step reward the agent "
     "learns from is r(s, a, s') = sum_i w_i * f_i + b, fitted to the episodes' returns (PHI factors at s', AUX "
     "at (s, a); weights refitted after every episode), so a factor's sign and scale are learned: an edit matters "
-    "when it changes which quantities, in which form, the program can express."
+    "when it changes which quantities, in which form, the program can express. A SHAPE factor is different: "
+    "state-only, never fitted to the returns, its value Psi(s) is a potential that the agent receives as "
+    "gamma * Psi(s') - Psi(s) on top of that reward, with the size you write; it changes where the agent looks "
+    "first, not what is optimal (potential-based shaping). Keep it bounded."
 )
 
 
@@ -95,6 +102,9 @@ class Evidence:
     return_attribution: dict[str, Any] | None = None
     """Which task features explain returns the program cannot (:meth:`ReturnAttribution.as_dict`): the
     program's out-of-sample R² of the returns and each feature's gain; None when not measured."""
+    plateau: dict[str, Any] | None = None
+    """The plateau detector's report (:meth:`mira.mcm.plateau.Plateau.as_dict`, with the per-step size of the
+    reward) when it is the cause; None otherwise."""
 
     @property
     def poor_return(self) -> bool:
@@ -198,9 +208,28 @@ def _diagnostics_block(ev: Evidence, hypotheses: list[Hypothesis]) -> str:
     if hypotheses and ev.cause == "anomaly":
         lines.append("  failure_hypotheses (rule readings of the diagnostics, preferred operators):")
         lines += [f"    - {h.operator}: {h.because}" for h in hypotheses]
+    lines += _plateau_lines(ev)
     lines += _decomposition_lines(ev)
     lines += _attribution_lines(ev)
     return "\n".join(lines)
+
+
+def _plateau_lines(ev: Evidence) -> list[str]:
+    p = ev.plateau
+    if not p:
+        return []
+    lo, hi = p["visited"]
+    lines = [
+        "PLATEAU (held-out return flat, episodes settled in a narrow band):",
+        f"  return median of the last cycles {float(p['recent_median']):.4g} against {float(p['previous_median']):.4g} "
+        f"before ({float(p['rise']):+.1%})",
+        f"  settled band: {p['feature']} = {float(p['center']):.4g} ± {float(p['halfwidth']):.4g}, where the run has "
+        f"visited [{lo:.4g}, {hi:.4g}]",
+        f"  reward per step at the plateau: about {float(p['reward_per_step']):.4g}",
+    ]
+    if p.get("d_peg") is not None and p.get("d_rpe") is not None:
+        lines.append(f"  d_PEG {float(p['d_peg']):+.3f}, d_RPE {float(p['d_rpe']):+.3f} (standardised)")
+    return lines
 
 
 def _refused_block(refused: list[dict[str, Any]]) -> str:
@@ -271,6 +300,7 @@ def build_srr_request(
         "factor_attention": dict(evidence.attention) if evidence.guided else {},
         "decomposition": evidence.decomposition,
         "return_attribution": evidence.return_attribution if evidence.guided else None,
+        "plateau": evidence.plateau if evidence.guided else None,
     }
     return LLMRequest(
         messages=[{"role": "system", "content": system}, {"role": "user", "content": user}],

@@ -160,7 +160,7 @@ def _run_factor(
     try:
         with np.errstate(all="ignore"):
             for label, view, acts in calls:
-                out = fn(view) if kind == "PHI" else fn(view, acts)
+                out = fn(view) if kind != "AUX" else fn(view, acts)
                 record = _encode(out)
                 result["outputs"][label] = record
                 if label == "base" and record["shape"] != [job["batch"]]:

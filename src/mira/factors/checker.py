@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING, Any
 
 from mira.factors.guards import unguarded_operations
 from mira.factors.literals import int_literal, is_np_linalg, numeric_literal
-from mira.factors.syntax import MAX_CODE_CHARS
+from mira.factors.syntax import MAX_CODE_CHARS, STATE_ONLY_TYPES
 from mira.factors.violations import Violation
 from mira.factors.whitelist import (
     BUILTIN_FUNCTIONS,
@@ -78,7 +78,7 @@ MAX_TOTAL_ITERATIONS = 1024  # product over nested loops
 MAX_COST = 4000  # expression nodes, each weighted by the iterations of its enclosing loops
 MAX_FACTORS = 32
 
-_PARAMS = {"PHI": ["s"], "AUX": ["s", "a"]}
+_PARAMS = {"PHI": ["s"], "AUX": ["s", "a"], "SHAPE": ["s"]}
 _IMPORT_NAMES = frozenset({"__import__", "importlib", "import_module"})
 _BUILTIN_NAMES = frozenset(dir(builtins))
 _OK_BINOPS = (
@@ -222,8 +222,8 @@ class _FunctionChecker:
         if expected is None:
             self.fail(fn, "signature", f"unknown factor type {self.kind!r}")
         elif names != expected:
-            if self.kind == "PHI" and names == _PARAMS["AUX"]:
-                self.fail(fn, "phi-action", "a PHI factor is state-only: its signature is (s), not (s, a)")
+            if self.kind in STATE_ONLY_TYPES and names == _PARAMS["AUX"]:
+                self.fail(fn, "phi-action", f"a {self.kind} factor is state-only: its signature is (s), not (s, a)")
             else:
                 self.fail(
                     fn,
@@ -463,8 +463,8 @@ class _FunctionChecker:
         elif name == self.factor:
             self.fail(node, "recursion", "a factor may not refer to itself")
         elif name == "a":
-            if self.kind == "PHI":
-                self.fail(node, "phi-action", "a PHI factor is state-only and may not read the action a")
+            if self.kind in STATE_ONLY_TYPES:
+                self.fail(node, "phi-action", f"a {self.kind} factor is state-only and may not read the action a")
         elif name == "s":
             self.fail(node, "attribute", "s may only be read as s.<feature> or s.obs")
         elif name in ("np", "math"):
@@ -516,8 +516,8 @@ class _FunctionChecker:
             if isinstance(sub, ast.Attribute) and sub.attr.startswith("_"):
                 self.fail(node, "dunder", f"attributes starting with '_' are not allowed ({sub.attr!r})")
                 return
-        if isinstance(node.value, ast.Name) and node.value.id == "a" and self.kind == "PHI":
-            self.fail(node, "phi-action", "a PHI factor is state-only and may not read the action a")
+        if isinstance(node.value, ast.Name) and node.value.id == "a" and self.kind in STATE_ONLY_TYPES:
+            self.fail(node, "phi-action", f"a {self.kind} factor is state-only and may not read the action a")
             return
         root: ast.AST = node
         while isinstance(root, ast.Attribute):

@@ -44,7 +44,7 @@ from mira.factors.program import (
     ProgramParseError,
     code_diff,
 )
-from mira.factors.syntax import reads_action
+from mira.factors.syntax import STATE_ONLY_TYPES, reads_action
 from mira.factors.violations import Violation
 
 if TYPE_CHECKING:
@@ -142,10 +142,10 @@ def gate_expression(gate: str, kind: str, target: str) -> ast.expr:
     allowed = _GATE_NAMES | ({"a"} if kind == "AUX" else set())
     for node in ast.walk(expr):
         if isinstance(node, ast.Name):
-            if node.id == "a" and kind == "PHI":
+            if node.id == "a" and kind in STATE_ONLY_TYPES:
                 raise EditError(
                     f"Gate on {target!r}: the gate reads the action 'a', which would route an "
-                    "action-dependent signal into a PHI factor (the potential must be state-only; "
+                    f"action-dependent signal into a {kind} factor (a potential must be state-only; "
                     "gate with g(s), or gate an AUX factor)"
                 )
             if node.id not in allowed:
@@ -354,10 +354,10 @@ class Refactor(Edit):
         old = out[i]
         if not isinstance(self.code, str) or not self.code.strip():
             raise EditError(f"Refactor of {self.target!r}: code must be a non-empty string")
-        if old.type == "PHI" and reads_action(self.code):
+        if old.type in STATE_ONLY_TYPES and reads_action(self.code):
             raise EditError(
                 f"Refactor of {self.target!r}: the new code reads the action 'a', which would route an "
-                "action-dependent signal into a PHI factor"
+                f"action-dependent signal into a {old.type} factor"
             )
         code = self.code if self.code.endswith("\n") else self.code + "\n"
         out[i] = replace(old, code=code, **_meta(self.metadata))
@@ -383,10 +383,10 @@ class Add(Edit):
     def apply(self, factors: Sequence[Factor]) -> list[Factor]:
         if any(f.name == self.factor.name for f in factors):
             raise EditError(f"Add: a factor named {self.factor.name!r} already exists")
-        if self.factor.type == "PHI" and reads_action(self.factor.code):
+        if self.factor.type in STATE_ONLY_TYPES and reads_action(self.factor.code):
             raise EditError(
-                f"Add: {self.factor.name!r} reads the action 'a' but is typed PHI; action-dependent "
-                "signals may not feed the potential (type it AUX)"
+                f"Add: {self.factor.name!r} reads the action 'a' but is typed {self.factor.type}; action-dependent "
+                "signals may not feed a potential (type it AUX)"
             )
         return [*factors, self.factor]
 

@@ -61,8 +61,8 @@ class CompiledProgram:
     """An admitted program compiled once, evaluated many times on :class:`StateView` batches.
 
     ``phi(view)`` gives ``[B, K_phi]`` (the inputs of Φ), ``aux(view, actions)`` ``[B, K_aux]``,
-    both float64 and finite. With ``strict=True`` a factor error raises :class:`FactorRuntimeError`
-    instead of producing a zero column (useful in tests and checks, not in training).
+    ``shape(view)`` ``[B, K_shape]``, all float64 and finite. With ``strict=True`` a factor error raises
+    :class:`FactorRuntimeError` instead of producing a zero column (useful in tests and checks, not in training).
     """
 
     def __init__(
@@ -80,6 +80,9 @@ class CompiledProgram:
         self._aux: list[tuple[Factor, FactorFunction]] = [
             (f, compile_factor(f.name, f.type, f.code, features)) for f in program.aux_factors
         ]
+        self._shape: list[tuple[Factor, FactorFunction]] = [
+            (f, compile_factor(f.name, f.type, f.code, features)) for f in program.shape_factors
+        ]
         self.health: dict[str, FactorHealth] = {f.name: FactorHealth() for f in program.factors}
 
     @property
@@ -89,6 +92,10 @@ class CompiledProgram:
     @property
     def aux_names(self) -> list[str]:
         return [f.name for f, _ in self._aux]
+
+    @property
+    def shape_names(self) -> list[str]:
+        return [f.name for f, _ in self._shape]
 
     @property
     def version(self) -> int:
@@ -117,9 +124,20 @@ class CompiledProgram:
                 out[:, j] = self._run(factor, fn, batch, (view, acts))
         return self._finite(out, self._aux)
 
+    def shape(self, view: StateView) -> np.ndarray:
+        """Every SHAPE factor on a batch of states: float64 ``[B, K_shape]`` (their sum is Ψ)."""
+        batch = int(view.obs.shape[0])
+        out = np.empty((batch, len(self._shape)), dtype=np.float64)
+        with np.errstate(all="ignore"):
+            for j, (factor, fn) in enumerate(self._shape):
+                out[:, j] = self._run(factor, fn, batch, (view,))
+        return self._finite(out, self._shape)
+
     def evaluate(self, view: StateView, actions: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Each factor's values by name (AUX factors only when ``actions`` are given)."""
         values = dict(zip(self.phi_names, self.phi(view).T, strict=True))
+        if self._shape:
+            values.update(zip(self.shape_names, self.shape(view).T, strict=True))
         if actions is not None and self._aux:
             values.update(zip(self.aux_names, self.aux(view, actions).T, strict=True))
         return values

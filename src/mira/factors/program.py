@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from mira.errors import UsageError
-from mira.factors.syntax import FACTOR_TYPES, reads_action
+from mira.factors.syntax import FACTOR_TYPES, STATE_ONLY_TYPES, reads_action
 from mira.factors.violations import Violation
 from mira.runio.atomic import atomic_write_json
 
@@ -116,16 +116,16 @@ def validate_factor(factor: Factor, where: str | None = None) -> None:
         )
     if factor.type not in FACTOR_TYPES:
         raise ProgramParseError(
-            f"{at}: type {factor.type!r} is unknown (use 'PHI' or 'AUX')",
+            f"{at}: type {factor.type!r} is unknown (use 'PHI', 'AUX' or 'SHAPE')",
             [Violation(name, "program", 0, f"unknown factor type {factor.type!r}")],
         )
     if not isinstance(factor.code, str) or not factor.code.strip():
         raise ProgramParseError(f"{at}: code is empty", [Violation(name, "program", 0, "empty code")])
     if factor.polarity is not None and factor.polarity not in POLARITIES:
         raise ProgramParseError(f"{at}: polarity {factor.polarity!r} is not one of {', '.join(POLARITIES)}")
-    if factor.type == "PHI" and reads_action(factor.code):
+    if factor.type in STATE_ONLY_TYPES and reads_action(factor.code):
         raise ProgramParseError(
-            f"{at}: a PHI factor is state-only but its code takes or reads the action 'a' "
+            f"{at}: a {factor.type} factor is state-only but its code takes or reads the action 'a' "
             "(make it AUX, or remove the action)",
             [Violation(name, "phi-action", 0, "PHI factor takes or reads the action")],
         )
@@ -196,6 +196,12 @@ class FactorProgram:
     def aux_factors(self) -> tuple[Factor, ...]:
         """State-action factors: policy-side regularisers, never part of Φ or the shaping term."""
         return tuple(f for f in self.factors if f.type == "AUX")
+
+    @property
+    def shape_factors(self) -> tuple[Factor, ...]:
+        """Shaping terms: their sum is a potential Ψ(s) added to the agent's reward as γΨ(s′) − Ψ(s),
+        outside the decomposition head and Φ."""
+        return tuple(f for f in self.factors if f.type == "SHAPE")
 
     @property
     def names(self) -> list[str]:

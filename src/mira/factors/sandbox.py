@@ -15,7 +15,9 @@ the parent computes every figure from the raw outputs:
   batch) at most ``max_saturation``;
 * ``lipschitz``: the ``lipschitz_quantile`` quantile over states of the gradient norm with respect
   to the observation, estimated by randomized finite differences (Gaussian directions ``u``, so
-  ``E[(∇f·u)^2] = |∇f|^2``), at most ``max_lipschitz``;
+  ``E[(∇f·u)^2] = |∇f|^2``), at most ``max_lipschitz``; for a SHAPE factor, whose size is its author's
+  choice (a potential sized in steps of the task's reward), the gradient per unit of its declared range
+  (a SHAPE factor without a finite declared range is judged in absolute units);
 * ``batch-coupling``: evaluating on the first half of the batch, or on the first state alone,
   gives the same values as on the whole batch (a factor is a function of one state, so
   ``x - np.mean(x)`` is refused).
@@ -195,6 +197,7 @@ def _figures_and_reasons(
     half: int,
     deltas: Sequence[float],
     th: SandboxThresholds,
+    kind: str = "PHI",
 ) -> tuple[dict[str, Any], list[Violation], list[str]]:
     figures: dict[str, Any] = {
         "seconds": record.get("seconds") if isinstance(record.get("seconds"), float) else None
@@ -293,12 +296,16 @@ def _figures_and_reasons(
         squares.append(((pert[1] - values) / delta) ** 2)
     if len(squares) == len(deltas) and squares:
         grad = np.sqrt(np.mean(np.stack(squares), axis=0))
+        unit = ""
+        if kind == "SHAPE" and bounds is not None and np.isfinite(bounds[1] - bounds[0]) and bounds[1] > bounds[0]:
+            grad = grad / (bounds[1] - bounds[0])
+            unit = " per unit of its declared range"
         figures["lipschitz_q"] = float(np.quantile(grad, th.lipschitz_quantile))
         figures["lipschitz_max"] = float(grad.max())
         if figures["lipschitz_q"] > th.max_lipschitz:
             fail(
                 "lipschitz",
-                f"gradient-norm q{th.lipschitz_quantile:g} = {figures['lipschitz_q']:.3g} > "
+                f"gradient-norm q{th.lipschitz_quantile:g} = {figures['lipschitz_q']:.3g}{unit} > "
                 f"{th.max_lipschitz:g}",
             )
     return figures, reasons, warnings
@@ -396,6 +403,7 @@ def sandbox_check(
             batch // 2,
             deltas,
             th,
+            spec["type"],
         )
         verdict.figures = figures
         verdict.reasons.extend(reasons)

@@ -8,8 +8,13 @@ from __future__ import annotations
 
 import ast
 
-FACTOR_TYPES = ("PHI", "AUX")
-"""PHI: state-only ``(s)``, may feed Φ; AUX: state–action ``(s, a)``, never feeds Φ."""
+FACTOR_TYPES = ("PHI", "AUX", "SHAPE")
+"""PHI: state-only ``(s)``, feeds the decomposition head and Φ; AUX: state–action ``(s, a)``, feeds the
+head, never Φ; SHAPE: state-only ``(s)``, a shaping potential Ψ(s) that enters the agent's reward only as
+γΨ(s′) − Ψ(s), never fitted to the returns (:mod:`mira.shaping.source`)."""
+
+STATE_ONLY_TYPES = ("PHI", "SHAPE")
+"""The types whose code takes ``(s)`` alone and may not read the action."""
 
 MAX_CODE_CHARS = 8000
 """Longest factor code accepted, checked before parsing so the parser's work is bounded."""

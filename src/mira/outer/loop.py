@@ -20,6 +20,12 @@ On a trigger (or, in the no-MCM ablation, on a fixed schedule) SRR proposes, che
 accepts a new program; on acceptance HARS re-initialises ϕ, φ and recomputes the buffer's factors
 while θ and ψ are kept, and the monitor starts its cooldown; on abstention it backs off.
 
+A plateau (:mod:`mira.mcm.plateau`: the held-out return flat, the episodes settled in a narrow band of the
+card's ``band_feature``) is the monitor's other cause: SRR is asked for a way out, which the offline engineer
+answers with a bounded SHAPE potential above the band. An escape installed that way is on probation: if the
+held-out return has not risen by ``plateau.MIN_RISE`` over the plateau's median after ``K_cool`` cycles, its
+SHAPE factors are removed again (the paper's back-off), as a new program version.
+
 Ablations (section 5.4): ``no-srr`` runs the monitor and logs it but never edits; ``no-mcm`` calls
 SRR every ``PERIODIC_CYCLES`` cycles (at most ``PERIODIC_MAX`` times), without diagnostic evidence.
 """
@@ -40,6 +46,7 @@ from mira.loop.hooks import CycleContext
 from mira.loop.rollout import discounted_return_to_go
 from mira.mcm.band import stagnation_band
 from mira.mcm.monitor import MetacognitiveMonitor
+from mira.mcm.plateau import MIN_RISE, Plateau, PlateauDetector, late_states
 from mira.mcm.records import METRIC_NAMES, CycleSnapshot, MCMResult, row_fields
 from mira.outer.config import OuterLoopConfig
 from mira.outer.repair import StructuralCheck
@@ -62,6 +69,9 @@ HOLDOUT_MAX_STATES = 1000
 PERIODIC_CYCLES = 10
 """no-mcm: call SRR every this many cycles, about as often as MIRA's triggers can come (each starts a cooldown
 of ``K_cool`` = 10 cycles)."""
+PLATEAU_FIELDS = ("step", "event", "version", "feature", "center", "halfwidth", "median", "before", "rise")
+"""``plateau.csv``: each plateau found (the band and the held-out return's windowed medians) and each escape's
+end of probation (``escape_kept`` or ``escape_rolled_back``, with the median since it was installed)."""
 PERIODIC_MAX = 5
 """no-mcm: at most this many periodic interventions (match MIRA's median trigger count)."""
 
@@ -102,7 +112,12 @@ class MiraOuterLoop:
         self.prev_actor: dict[str, torch.Tensor] | None = None
         self.pending_observation: dict[str, Any] | None = None
         self.structural = StructuralCheck(card, hars)
+        self.plateau = None if card.band_feature is None else PlateauDetector(card.band_feature)
+        self.escape: dict[str, Any] | None = None
+        """The escape on probation: its factors, the plateau's median return, the cycle it is judged at and the
+        held-out returns since it was installed."""
         self._diagnostics: CsvLog | None = None
+        self._plateau_log: CsvLog | None = None
 
     # ------------------------------------------------------------------------------------------- cycle
     def on_cycle(self, ctx: CycleContext) -> dict[str, float]:
@@ -134,6 +149,7 @@ class MiraOuterLoop:
             smoothed_return=recent, factor_ids_changed=False,
         )
         result = self.monitor.diagnose(snapshot)
+        plateau = self._watch_plateau(ctx, rollout, recent, result)
         # The unguided ablation gets no evidence of any kind, this included.
         attribution = self.structural.observe() if cfg.repair and self.ablation != "no-mcm" else None
         self._log(ctx, result, attribution)
@@ -149,9 +165,10 @@ class MiraOuterLoop:
             log.info("step %d: the returns show a structural flaw: with %s the program's factors would explain "
                      "them out of sample with R² %.3f instead of %.3f (%d cycles in a row)", ctx.step, shape,
                      best.r2, attribution.program_r2, self.structural.streak)
+        escaping = plateau is not None and self.ablation == "full" and self.escape is None
         wants_srr = False
         if self.ablation == "full":
-            wants_srr = result.trigger or structural
+            wants_srr = result.trigger or structural or escaping
         elif self.ablation == "no-mcm":
             wants_srr = (self.cycle + 1) % PERIODIC_CYCLES == 0 and self.interventions < PERIODIC_MAX
         decision = None
@@ -162,10 +179,11 @@ class MiraOuterLoop:
                      float(result.threshold), why or "no single leading metric")
         if wants_srr and self.reframer is not None:
             # A rejection makes the monitor harder to trigger, unless the structural check alone asked.
-            backoff_monitor = result.trigger or self.ablation != "full" or not structural
-            cause = "anomaly" if result.trigger else "structural" if structural else "periodic"
+            backoff_monitor = result.trigger or self.ablation != "full" or not (structural or escaping)
+            cause = ("anomaly" if result.trigger else "structural" if structural else "plateau" if escaping
+                     else "periodic")
             decision = self._reframe(ctx, result, rollout, keep, values[keep], attention, recent, attribution,
-                                     backoff_monitor, cause)
+                                     backoff_monitor, cause, plateau if cause == "plateau" else None)
         self.cycle += 1
         out = {"S": float(result.score) if np.isfinite(result.score) else float("nan"),
                "trigger": float(result.trigger), "version": float(self.program.version)}
@@ -173,13 +191,75 @@ class MiraOuterLoop:
             out["accepted"] = float(decision.accepted)
         return out
 
+    def _watch_plateau(self, ctx: CycleContext, rollout: Any, recent: float, result: MCMResult) -> Plateau | None:
+        """Feed the plateau detector this cycle's held-out episodes; judge an escape on probation."""
+        if self.plateau is None or self.ablation == "no-mcm":
+            return None
+        if self.escape is not None:
+            self._judge_escape(ctx, recent)
+            if self.escape is not None:  # still on probation: its returns are not a stall of the program before it
+                return None
+        feature = self.card.feature_values(rollout.obs)[self.plateau.feature]
+        visited = (float(np.percentile(feature, 1)), float(np.percentile(feature, 99)))
+        d = result.evidence()["d"]
+        found = self.plateau.observe(ctx.step, recent, late_states(feature, rollout.episode_index), visited,
+                                     d.get("peg"), d.get("rpe"))
+        if found is not None:
+            log.info("step %d: learning has stalled: held-out return %.6g against %.6g before (%+.1f%%), episodes "
+                     "settled at %s = %.4g ± %.3g", ctx.step, found.recent_median, found.previous_median,
+                     100 * found.rise, found.feature, found.center, found.halfwidth)
+            self._record(ctx, "plateau", feature=found.feature, center=found.center, halfwidth=found.halfwidth,
+                         median=found.recent_median, before=found.previous_median, rise=found.rise)
+        return found
+
+    def _judge_escape(self, ctx: CycleContext, recent: float) -> None:
+        """After ``K_cool`` cycles, keep an escape whose held-out returns rose above the plateau's, else remove it."""
+        escape = self.escape
+        assert escape is not None
+        escape["returns"].append(recent)
+        if self.cycle < escape["due_cycle"]:
+            return
+        self.escape = None
+        after = float(np.median(escape["returns"]))
+        rise = (after - escape["plateau_median"]) / max(abs(escape["plateau_median"]), 1e-8)
+        verdict = {"step": ctx.step, "plateau_median": escape["plateau_median"], "median_since": after, "rise": rise,
+                   "factors": escape["factors"], "kept": rise >= MIN_RISE}
+        atomic_write_json(ctx.run.path / escape["folder"] / "probation.json", verdict)
+        if rise >= MIN_RISE:
+            log.info("step %d: the escape paid (held-out return %+.1f%% over the plateau): kept", ctx.step, 100 * rise)
+            assert self.plateau is not None
+            self.plateau.reset()
+            self._record(ctx, "escape_kept", median=after, before=escape["plateau_median"], rise=rise)
+            return
+        old = self.program
+        self.program = old.with_factors([f for f in old.factors if f.name not in escape["factors"]],
+                                        version=old.version + 1, parent_version=old.version, edits=(),
+                                        rationale=f"rolled back {', '.join(escape['factors'])}: the escape did not "
+                                        f"pay within {self.config.mcm.k_cool} cycles ({100 * rise:+.1f}%)", diff="")
+        save_program_version(ctx.run.programs, old, self.program)
+        self.hars.set_program(ProgramFactorSource(self.program, self.card))
+        assert self.plateau is not None
+        self.plateau.reset()
+        log.info("step %d: the escape did not pay (held-out return %+.1f%% over the plateau): rolled back to "
+                 "program v%d without %s", ctx.step, 100 * rise, self.program.version, ", ".join(escape["factors"]))
+        self._record(ctx, "escape_rolled_back", median=after, before=escape["plateau_median"], rise=rise)
+
+    def _record(self, ctx: CycleContext, event: str, **row: Any) -> None:
+        """One line of ``plateau.csv``: a plateau found, or an escape's probation ended (kept or rolled back)."""
+        if self._plateau_log is None:
+            self._plateau_log = CsvLog(ctx.run.path / "plateau.csv", PLATEAU_FIELDS)
+            self._plateau_log.rewind(ctx.step - 1)
+        self._plateau_log.append({"step": ctx.step, "event": event, "version": self.program.version, **row})
+
     def _reframe(self, ctx: CycleContext, result: MCMResult, rollout: Any, keep: np.ndarray, values: np.ndarray,
                  attention: dict[str, float], recent: float, attribution: ReturnAttribution | None,
-                 backoff_monitor: bool, cause: str) -> SRRDecision:
+                 backoff_monitor: bool, cause: str, plateau: Plateau | None = None) -> SRRDecision:
         assert self.reframer is not None
         guided = self.ablation == "full"
         band = None
-        if self.card.band_feature is not None:
+        if plateau is not None:
+            band = {"feature": plateau.feature, "center": plateau.center, "halfwidth": plateau.halfwidth}
+        elif self.card.band_feature is not None:
             center, half = stagnation_band(self.card.feature_values(rollout.obs)[self.card.band_feature])
             band = {"feature": self.card.band_feature, "center": center, "halfwidth": half}
         ev = result.evidence()
@@ -189,6 +269,9 @@ class MiraOuterLoop:
             baseline_return=float(result.baseline), stagnation_band=band, attention=attention, guided=guided,
             decomposition=self.hars.head.describe(),
             return_attribution=None if attribution is None or not guided else attribution.as_dict(), cause=cause,
+            plateau=None if plateau is None else {
+                **plateau.as_dict(),
+                "reward_per_step": recent / max(1.0, float(len(rollout.obs)) / max(1, len(rollout.returns)))},
         )
         folder = ctx.run.interventions / f"{self.interventions:03d}-step{ctx.step}"
         self.interventions += 1
@@ -219,6 +302,11 @@ class MiraOuterLoop:
             self.monitor.on_edit_accepted()
             self.pending_observation = {"operators": decision.operators, "d_before": result.d.tolist(),
                                         "due_cycle": self.cycle + self.config.mcm.k_cool}
+            if plateau is not None:
+                added = sorted({f.name for f in self.program.shape_factors} - {f.name for f in old.shape_factors})
+                self.escape = {"factors": added, "plateau_median": plateau.recent_median, "returns": [],
+                               "due_cycle": self.cycle + self.config.mcm.k_cool, "folder": folder.relative_to(
+                                   ctx.run.path).as_posix()}
             changed = [ln for ln in code_diff(old, self.program).splitlines()
                        if ln.startswith("+") and not ln.startswith("+++") and ln[1:].strip()]
             log.info("step %d: installed program v%d (%s, %s)%s", ctx.step, self.program.version, decision.reason,
@@ -267,6 +355,8 @@ class MiraOuterLoop:
             "pending": self.pending_observation,
             "llm": backend_state_dict(self.backend) if self.backend is not None else {},
             "refused": self.reframer.refused if self.reframer is not None else [],
+            "plateau": None if self.plateau is None else self.plateau.state_dict(),
+            "escape": self.escape,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -282,6 +372,9 @@ class MiraOuterLoop:
             load_backend_state_dict(self.backend, state["llm"])
         if self.reframer is not None:
             self.reframer.refused = list(state.get("refused", []))
+        if self.plateau is not None and state.get("plateau") is not None:
+            self.plateau.load_state_dict(state["plateau"])
+        self.escape = state.get("escape")
 
 
 def save_program_version(directory: Any, old: FactorProgram | None, new: FactorProgram) -> None:

@@ -7,6 +7,9 @@ into columns sized like the replay buffer, so shaping a sampled batch is a gathe
 stored since the last batch that needed one of them: one evaluation per step would run the factor code
 and the statistics on one row at a time. Whoever reads a row first calls :meth:`FactorColumns.ensure`.
 
+With SHAPE factors in the program, Ψ(s) and Ψ(s′) (their sum) are kept per row too (``psi``,
+``psi_next``); without them there are no such columns and no extra work.
+
 The running statistics of PHI values (reset with a new program) and of observations (kept across
 programs) are folded in as rows are evaluated; HARS snapshots them when its weights change.
 """
@@ -28,7 +31,8 @@ bound the temporary arrays of a million-row buffer."""
 
 
 class FactorColumns:
-    """PHI at s, PHI at s′ and AUX factor values of every stored row (``phi``, ``phi_next``, ``aux``)."""
+    """PHI at s, PHI at s′ and AUX factor values of every stored row (``phi``, ``phi_next``, ``aux``), and Ψ at
+    s and s′ (``psi``, ``psi_next``) when the program has SHAPE factors."""
 
     def __init__(self, factors: FactorSource, buffer: ReplayBuffer, obs_stats: RunningStats) -> None:
         self.factors = factors
@@ -40,6 +44,11 @@ class FactorColumns:
         self.phi_next = torch.zeros((cap, k), dtype=torch.float32)
         self.aux = torch.zeros((cap, k_aux), dtype=torch.float32)
         self._np_phi, self._np_phi_next, self._np_aux = self.phi.numpy(), self.phi_next.numpy(), self.aux.numpy()
+        self.shaping = bool(getattr(factors, "shape_names", None))
+        """Whether the program has SHAPE factors (then ``psi``/``psi_next`` hold Ψ; else they are empty)."""
+        n_psi = cap if self.shaping else 0
+        self.psi = torch.zeros(n_psi, dtype=torch.float32)
+        self.psi_next = torch.zeros(n_psi, dtype=torch.float32)
         self.factor_stats = RunningStats(k)
         self.pending: list[int] = []  # rows stored but not yet evaluated
         self._is_pending = np.zeros(cap, dtype=bool)
@@ -71,6 +80,8 @@ class FactorColumns:
         self._np_phi_next[rows] = self.factors.phi(buf.next_obs.numpy()[rows])
         if self.factors.aux_names:
             self._np_aux[rows] = self.factors.aux(obs, buf.action.numpy()[rows])
+        if self.shaping:
+            self._shape_rows(rows, obs, buf.next_obs.numpy()[rows])
         self.factor_stats.update(phi_s)
         self.obs_stats.update(obs)
 
@@ -90,9 +101,16 @@ class FactorColumns:
             self._np_phi_next[start:stop] = self.factors.phi(buf.next_obs[start:stop].numpy())
             if self.factors.aux_names:
                 self._np_aux[start:stop] = self.factors.aux(obs, buf.action[start:stop].numpy())
+            if self.shaping:
+                self._shape_rows(np.arange(start, stop), obs, buf.next_obs[start:stop].numpy())
             stats.update(vals)
         if reset_stats:
             self.factor_stats = stats
+
+    def _shape_rows(self, rows: np.ndarray, obs: np.ndarray, next_obs: np.ndarray) -> None:
+        shape = self.factors.shape  # type: ignore[attr-defined]  # present where ``shaping`` is
+        self.psi.numpy()[rows] = shape(obs)
+        self.psi_next.numpy()[rows] = shape(next_obs)
 
     def numpy_rows(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(phi, phi_next, aux)`` of ``rows`` as NumPy arrays (evaluated first if pending)."""
@@ -103,13 +121,19 @@ class FactorColumns:
         """The evaluated rows (pending ones are evaluated first, so a resumed run flushes at the same points)."""
         self.flush()
         n = self.buffer.size
-        return {"phi": self.phi[:n].clone(), "phi_next": self.phi_next[:n].clone(), "aux": self.aux[:n].clone()}
+        out = {"phi": self.phi[:n].clone(), "phi_next": self.phi_next[:n].clone(), "aux": self.aux[:n].clone()}
+        if self.shaping:
+            out.update(psi=self.psi[:n].clone(), psi_next=self.psi_next[:n].clone())
+        return out
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         n = state["phi"].shape[0]
         self.phi[:n] = state["phi"]
         self.phi_next[:n] = state["phi_next"]
         self.aux[:n] = state["aux"]
+        if self.shaping:
+            self.psi[:n] = state["psi"]
+            self.psi_next[:n] = state["psi_next"]
 
 
 def window_rows(buffer: ReplayBuffer, rows: np.ndarray, w: int) -> tuple[torch.Tensor, torch.Tensor]:

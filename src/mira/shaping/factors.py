@@ -239,8 +239,17 @@ class ProgramFactorSource:
     def version(self) -> int:
         return self.program.version
 
+    @property
+    def shape_names(self) -> list[str]:
+        """The program's SHAPE factors: HARS adds γΨ(s′) − Ψ(s) of their sum Ψ to the agent's reward."""
+        return self.compiled.shape_names
+
     def phi(self, obs: np.ndarray) -> np.ndarray:
         return self.compiled.phi(self.card.state_view(obs))
+
+    def shape(self, obs: np.ndarray) -> np.ndarray:
+        """Ψ(s) of raw observations ``[B, obs_dim]``: the sum of the SHAPE factors, float64 ``[B]``."""
+        return self.compiled.shape(self.card.state_view(obs)).sum(axis=1)
 
     def aux(self, obs: np.ndarray, act: np.ndarray) -> np.ndarray:
         return self.compiled.aux(self.card.state_view(obs), act)

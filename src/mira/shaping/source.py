@@ -2,14 +2,23 @@
 
 What the agent learns from, for a sampled transition (s, a, s′):
 
-    r = r̂(s, a, s′) + κ · (γ · Φ(s′) · (1 − terminated) − Φ(s)),
+    r = r̂(s, a, s′) + κ · (γ · Φ(s′) · (1 − terminated) − Φ(s)) + γ · Ψ(s′) · (1 − terminated) − Ψ(s),
 
 with r̂ the decomposition head's per-step reward (:mod:`mira.shaping.decomposition`, fitted to
 episodic returns only) and Φ the FAB → VPM potential TD-aligned to r̂ (:mod:`mira.shaping.objective`).
 κ = 0 by default: the agent learns from r̂ alone, and Φ (still aligned to r̂) is what MCM and SRR
 read; κ = 1 adds the PBRS term. Under ``hars.alignment=episodic`` (the paper's letter)
 r̂ is replaced by the episodic r_ext in both places. Terminals are absorbing; a time-limit truncation
-keeps Φ(s′), as the critic keeps bootstrapping. The pieces:
+keeps Φ(s′), as the critic keeps bootstrapping.
+
+Ψ is the sum of the program's SHAPE factors, taken as they are written: a fixed potential, not a learned
+one and not fitted to the returns (the head never sees them, so r̂ and its weights are the same with or
+without them). Why the factor itself rather than a learned Φ over it: a learned Φ is fitted to r̂ and so
+refits an escape ramp towards what the returns already pay (its weight goes to about 0), and at κ = 1 on
+HumanoidStandup a Φ of the returns' scale swamped r̂'s differences between actions (``bench/RESULTS.md``);
+a written potential keeps the size its author gave it, which the reward engineer sets against the
+program's per-step scale. By Ng et al.'s invariance, γΨ(s′) − Ψ(s) leaves the optimal policies of r̂
+unchanged; it only changes where the agent looks first. The pieces:
 
 * :mod:`mira.shaping.columns`: each stored transition's factor values, evaluated lazily in batches;
 * :mod:`mira.shaping.decomposition`: r̂ and its weights, the section-3 evidence MCM/SRR read;
@@ -149,6 +158,15 @@ def _forward_with_graph(nets: PotentialNetworks, columns: FactorColumns, batch: 
                    None if valid is None else valid.to(device))
 
 
+def _shaping_term(columns: FactorColumns, indices: np.ndarray, terminated: torch.Tensor, gamma: float) -> torch.Tensor:
+    """γΨ(s′)(1 − terminated) − Ψ(s) of stored rows, Ψ the sum of the program's SHAPE factors (absorbing
+    terminals; a truncation keeps Ψ(s′))."""
+    columns.ensure(indices)
+    rows = torch.from_numpy(indices)
+    psi, psi_next = columns.psi.index_select(0, rows), columns.psi_next.index_select(0, rows)
+    return (gamma * (1.0 - terminated.to(psi.device)) * psi_next - psi).to(terminated.device)
+
+
 def _as_numpy(obs: np.ndarray | torch.Tensor, obs_dim: int) -> np.ndarray:
     if isinstance(obs, torch.Tensor):
         obs = obs.detach().cpu().numpy()
@@ -247,8 +265,7 @@ class HarsReward(LookaheadSource):
 
     # ---------------------------------------------------------------------------- relabelling
     def relabel(self, batch: Batch) -> torch.Tensor:
-        b = batch.reward.shape[0]
-        cfg = self.config
+        b, cfg = batch.reward.shape[0], self.config
         if not (torch.is_grad_enabled() and self._trains_now()):
             return resolve(self._shape_frozen([batch])[0])
         self.sync()  # this batch is shaped, with a graph, by the latest weights
@@ -262,10 +279,13 @@ class HarsReward(LookaheadSource):
         base = batch.reward if cfg.alignment == "episodic" else \
             self.decomposed.of_rows(torch.from_numpy(batch.indices)).to(batch.reward.device)
         self._pending = _forward_with_graph(self.nets, self.columns, batch, base, n_ctx, joint=self.kappa != 0.0)
-        if self.kappa == 0.0:
-            return base
-        phi = self._pending.leaf if self._pending.leaf is not None else self._pending.phi.detach()
-        return base + self.kappa * (self.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b])
+        shaped = base
+        if self.kappa != 0.0:
+            phi = self._pending.leaf if self._pending.leaf is not None else self._pending.phi.detach()
+            shaped = base + self.kappa * (self.gamma * (1.0 - batch.terminated) * phi[b:] - phi[:b])
+        if self.columns.shaping:  # outside Φ's alignment target: the agent's reward alone carries it
+            shaped = shaped + _shaping_term(self.columns, batch.indices, batch.terminated, self.gamma)
+        return shaped
 
     def lookahead(self) -> int:
         # Φ is one fixed function from one training update to the next, so the batches of a whole
@@ -300,10 +320,10 @@ class HarsReward(LookaheadSource):
         self.columns.ensure(idx)
         rows = torch.from_numpy(idx)
         sizes = [b.reward.shape[0] for b in batches]
-        if self.config.alignment == "episodic":
-            reward = torch.cat([b.reward for b in batches])
-        else:
-            reward = self.decomposed.of_rows(rows).to(batches[0].reward.device)
+        reward = torch.cat([b.reward for b in batches]) if self.config.alignment == "episodic" else \
+            self.decomposed.of_rows(rows).to(batches[0].reward.device)
+        if self.columns.shaping:
+            reward = reward + _shaping_term(self.columns, idx, torch.cat([b.terminated for b in batches]), self.gamma)
         if self.kappa == 0.0:
             return list(reward.split(sizes))
         cols = self.columns
@@ -413,7 +433,8 @@ class HarsReward(LookaheadSource):
         prog = self.program
         return {"method": self.name, "phi_factors": list(self.factors.phi_names),
                 "aux_factors": list(self.factors.aux_names), "hars": asdict(self.config),
-                "train_in_background": self.background, "alignment": self.config.alignment, "kappa": self.kappa,
+                "shape_factors": list(getattr(self.factors, "shape_names", [])), "kappa": self.kappa,
+                "train_in_background": self.background, "alignment": self.config.alignment,
                 "decomposition": self.head.describe() if self._bound else None,
                 "program_version": None if prog is None else prog.version}
 

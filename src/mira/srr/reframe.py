@@ -9,8 +9,13 @@ current program's by ``MIN_R2_GAIN``: the test a structural repair can pass, see
 veto: a candidate whose R² is below the current program's by more than ``MAX_R2_LOSS`` (or, for a
 program that explains the returns almost exactly, by more than ``MAX_UNEXPLAINED_GROWTH`` times what it
 leaves unexplained) is refused whatever its proxy test says (the AUC labels come from the current
-program, the returns from the task). The best passing candidate (by R² gain, then J_SRR) is accepted;
-if none passes, SRR abstains and the caller backs off. A failing LLM is a recorded, failed intervention —
+program, the returns from the task). A candidate that changes only SHAPE factors (shaping terms outside the
+fitted reward, :mod:`mira.shaping.source`) is judged as what it is: it leaves the program's fit to the
+returns and its potential unchanged by construction, so neither the returns nor the proxy test can say
+anything of it; it passes when each SHAPE factor declares a finite range, at most ``MAX_SHAPE_STEPS``
+steps of the run's reward wide, and keeps to it on the held-out states (a bounded potential), after the
+same parser, static checks and sandbox. The best passing candidate (by R² gain, then J_SRR) is accepted;
+if none passes, SRR abstains and the caller backs off. A failing LLM is a recorded, failed intervention,
 never a crash. Every step is written into the intervention's folder as it happens.
 """
 
@@ -29,11 +34,13 @@ from mira.engineer.admission import admit_program
 from mira.engineer.dialogue import Verdict, converse
 from mira.engineer.srr_candidates import Candidate, parse_candidates
 from mira.engineer.srr_prompt import Evidence, build_srr_request
+from mira.factors.checker import parse_range_hint
 from mira.factors.program import FactorProgram, ProgramParseError, code_diff
 from mira.llm.base import LLMBackend, LLMError
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.runio.failpoints import failpoint
 from mira.shaping.attribution import MAX_R2_LOSS, MAX_UNEXPLAINED_GROWTH, MIN_R2_GAIN
+from mira.shaping.factors import ProgramFactorSource
 from mira.srr.config import SRRConfig
 from mira.srr.efficacy import proxy_efficacy
 from mira.srr.hypotheses import METRICS, OPERATORS, EditSurrogate, complexity, rule_hypotheses
@@ -43,6 +50,9 @@ log = logging.getLogger(__name__)
 
 PERMUTATIONS = 1000
 """Permutations of the AUC and Spearman tests: resolves p-values down to 1/1001, well below ``max_p_value``."""
+MAX_SHAPE_STEPS = 100.0
+"""The largest declared range a SHAPE factor may have, in steps of the run's reward per step: a shaping term
+may pay for leaving a state many steps' worth, never so much that the task's own reward stops mattering."""
 LABEL_QUANTILES = (0.3, 0.7)
 """States at or below the first value quantile are negatives, at or above the second positives: the middle
 40%, whose ranking is noise, is left out."""
@@ -93,6 +103,7 @@ class Reframer:
         self.backend = backend
         self.action_dim = action_dim
         self.surrogate = surrogate or EditSurrogate(lambda_comp=config.lambda_comp)
+        self._reward_per_step = 0.0  # of the request being judged: bounds a SHAPE factor's size
 
     def reframe(
         self,
@@ -155,6 +166,9 @@ class Reframer:
         if evidence.guided and any(evidence.gradient.values()):
             direction = np.array([evidence.gradient.get(m, 0.0) for m in METRICS])
         base_r2 = _safe_r2(explain, program) if explain is not None else None
+        plateau = evidence.plateau or {}
+        self._reward_per_step = abs(float(plateau.get("reward_per_step",
+                                                      evidence.recent_return / max(1, self.card.eval_horizon))))
         shortlist: list[tuple[tuple[float, float], Candidate]] = []
         for cand in candidates:
             passed, j_srr = self._validate(cand, program, eval_obs, eval_values, proxy, direction, seed, explain,
@@ -163,7 +177,9 @@ class Reframer:
             if passed and j_srr is not None:
                 shortlist.append(((gain if gain is not None and np.isfinite(gain) else -np.inf, j_srr), cand))
             eff = cand.verdicts.get("efficacy")
-            if eff:  # it reached the proxy-efficacy check: its figures say why it passed or not
+            if "shaping" in cand.verdicts:
+                verdict = "shaping term, bounded: passed" if passed else cand.verdicts.get("rejected", "rejected")
+            elif eff:  # it reached the proxy-efficacy check: its figures say why it passed or not
                 r2 = "" if gain is None else f", return R² {gain:+.3f}"
                 verdict = (f"AUC {eff['auc']:.3f}, p {eff['auc_p']:.3g}, J_SRR {eff['j_srr']:.3f}{r2}: "
                            + ("passed" if passed else "rejected"))
@@ -205,6 +221,8 @@ class Reframer:
         if not cand.admitted:
             return False, None
         assert cand.program is not None
+        if _changes_only_shaping(current, cand.program):
+            return self._validate_shaping(cand, current, obs, direction)
         try:
             phi = np.asarray(proxy(cand.program, obs), dtype=np.float64)
         except Exception as exc:  # a proxy failure rejects the candidate, it never stops training
@@ -242,6 +260,38 @@ class Reframer:
                                             f"; return R² gain {cand.verdicts['returns']['gain']:+.3f} "
                                             f"(or at least {MIN_R2_GAIN})"))
         return ok or explains, j_srr
+
+    def _validate_shaping(self, cand: Candidate, current: FactorProgram, obs: np.ndarray,
+                          direction: np.ndarray | None) -> tuple[bool, float | None]:
+        """A shaping-only candidate: every SHAPE factor bounded by a finite declared range, and within it on
+        the held-out states."""
+        assert cand.program is not None
+        comp = complexity(len(cand.operators), len(cand.program.factors) - len(current.factors),
+                          sum(len(f.code) for f in cand.program.factors) - sum(len(f.code) for f in current.factors))
+        j_srr = self.surrogate.score(cand.operators, direction, comp)
+        values = ProgramFactorSource(cand.program, self.card).compiled.shape(self.card.state_view(obs))
+        problems = []
+        for j, f in enumerate(cand.program.shape_factors):
+            bounds = parse_range_hint(f.range_hint) if f.range_hint else None
+            if bounds is None or not all(np.isfinite(bounds)):
+                problems.append(f"{f.name}: a SHAPE factor must declare a finite range_hint (a bounded potential)")
+                continue
+            lo, hi = bounds
+            if hi - lo > MAX_SHAPE_STEPS * self._reward_per_step:
+                problems.append(f"{f.name}: its declared range [{lo:.4g}, {hi:.4g}] is wider than {MAX_SHAPE_STEPS:g} "
+                                f"steps of the run's reward ({self._reward_per_step:.4g} per step)")
+                continue
+            slack = 1e-6 * max(1.0, hi - lo)
+            seen = (float(values[:, j].min()), float(values[:, j].max())) if len(values) else (lo, hi)
+            if seen[0] < lo - slack or seen[1] > hi + slack:
+                problems.append(f"{f.name}: values [{seen[0]:.4g}, {seen[1]:.4g}] on the held-out states leave its "
+                                f"declared range [{lo:.4g}, {hi:.4g}]")
+        cand.verdicts["shaping"] = {"shape_only": True, "j_srr": j_srr, "complexity": comp,
+                                    "problems": problems, "passed": not problems}
+        if problems:
+            cand.verdicts["rejected"] = "shaping term: " + "; ".join(problems)
+            return False, j_srr
+        return True, j_srr
 
     def _admit_reply(self, text: str, current: FactorProgram, sandbox_obs: np.ndarray,
                      sandbox_actions: np.ndarray) -> Verdict[list[Candidate]]:
@@ -304,6 +354,17 @@ def choice_reason(shortlist: list[tuple[tuple[float, float], Candidate]], chosen
     if np.isfinite(gain):
         return f" (largest return R² gain, {gain:+.3f}, J_SRR {j:.3f}; ranked by R² gain, then J_SRR; {others})"
     return f" (highest J_SRR, {j:.3f}, no return R² measured; {others})"
+
+
+def _changes_only_shaping(current: FactorProgram, candidate: FactorProgram) -> bool:
+    """Whether ``candidate`` differs from ``current`` in its SHAPE factors alone (and does differ there)."""
+    def fitted(p: FactorProgram) -> list[tuple[str, str, str]]:
+        return [(f.name, f.type, f.code) for f in p.factors if f.type != "SHAPE"]
+
+    def shaping(p: FactorProgram) -> list[tuple[str, str, str]]:
+        return [(f.name, f.type, f.code) for f in p.shape_factors]
+
+    return fitted(current) == fitted(candidate) and shaping(current) != shaping(candidate)
 
 
 def allowed_r2_loss(current_r2: float, max_loss: float, max_unexplained_growth: float) -> float:

@@ -1,0 +1,117 @@
+"""The monitor's plateau detector: learning has stalled with the policy settled in a narrow band of states.
+
+The anomaly score asks whether this cycle's diagnostics look unlike the run's healthy cycles; a run that
+is stuck from early on has no healthy cycles to differ from, and a crouch that the program explains well
+is not an anomaly of the reward (section 5.3.2's case study: HumanoidStandup's policy settles at one
+torso height and stays). This detector reads what stagnation looks like directly:
+
+* the held-out return has stopped rising: the median of the last ``WINDOW`` cycles is less than
+  ``MIN_RISE`` (relative) above the median of the ``WINDOW`` cycles before, for ``PATIENCE`` cycles in a
+  row, after ``WARMUP_CYCLES`` (the first cycles are noise around the untrained policy);
+* the evaluation episodes settle in a narrow band of the card's ``band_feature``: the band holding half
+  of the late-episode states (:func:`mira.mcm.band.stagnation_band`) is at most ``MAX_BAND_SHARE`` of the
+  range the run has visited.
+
+d_PEG (policy change per step) and d_RPE (the potential's residual) are recorded beside it as the
+paper's signature (PEG collapsing, RPE stuck high), not required: their scale differs across tasks, and
+the return's slope is what says a run is stuck. After a plateau is reported the detector forgets its
+history, so the next report needs a fresh stall (two windows) of its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mira.mcm.band import stagnation_band
+
+WINDOW = 10
+"""Cycles per median: the return is compared as the median of the last WINDOW cycles against the median
+of the WINDOW before (about 10 episodes each at the default cycle of one episode)."""
+WARMUP_CYCLES = 30
+"""Cycles before the first report: the early returns move with exploration and the first fits."""
+MIN_RISE = 0.02
+"""The relative rise of the windowed median below which the return counts as flat."""
+PATIENCE = 2
+"""Flat cycles in a row before a report: one flat comparison can be a dip."""
+MAX_BAND_SHARE = 0.1
+"""How narrow the settled band must be: its half-width as a share of the visited range of the feature."""
+LATE_SHARE = 0.5
+"""Which states of an evaluation episode show where it settles: its last half."""
+
+
+@dataclass
+class Plateau:
+    """A detected plateau: the flat return and the band where the episodes settle."""
+
+    step: int
+    recent_median: float
+    previous_median: float
+    rise: float
+    feature: str
+    center: float
+    halfwidth: float
+    visited: tuple[float, float]
+    peg: float | None
+    rpe: float | None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.step, "recent_median": self.recent_median, "previous_median": self.previous_median,
+                "rise": self.rise, "feature": self.feature, "center": self.center, "halfwidth": self.halfwidth,
+                "visited": list(self.visited), "d_peg": self.peg, "d_rpe": self.rpe}
+
+
+def late_states(values: np.ndarray, episode_index: np.ndarray, share: float = LATE_SHARE) -> np.ndarray:
+    """The values of the last ``share`` of each episode's steps (where an episode settles)."""
+    values, episode_index = np.asarray(values, dtype=np.float64), np.asarray(episode_index)
+    keep = np.zeros(values.shape[0], dtype=bool)
+    for e in np.unique(episode_index):
+        where = np.flatnonzero(episode_index == e)
+        keep[where[int(len(where) * (1.0 - share)):]] = True
+    return values[keep]
+
+
+class PlateauDetector:
+    """Reports a :class:`Plateau` when the held-out return is flat and the episodes settle in a narrow band."""
+
+    def __init__(self, feature: str) -> None:
+        self.feature = feature
+        self.returns: list[float] = []
+        self.flat = 0
+        self.cycles = 0
+
+    def observe(self, step: int, held_out_return: float, settled: np.ndarray, visited: tuple[float, float],
+                peg: float | None = None, rpe: float | None = None) -> Plateau | None:
+        """One cycle: its mean held-out return, the band feature's values where the held-out episodes settle
+        (:func:`late_states`), the range of the feature the run has visited, and d_PEG/d_RPE for the record."""
+        self.cycles += 1
+        self.returns.append(float(held_out_return))
+        self.returns = self.returns[-2 * WINDOW:]
+        if self.cycles < WARMUP_CYCLES or len(self.returns) < 2 * WINDOW:
+            return None
+        previous = float(np.median(self.returns[:WINDOW]))
+        recent = float(np.median(self.returns[WINDOW:]))
+        rise = (recent - previous) / max(abs(previous), 1e-8)
+        self.flat = self.flat + 1 if rise < MIN_RISE else 0
+        if self.flat < PATIENCE:
+            return None
+        center, half = stagnation_band(settled)
+        span = max(float(visited[1] - visited[0]), 1e-8)
+        if half > MAX_BAND_SHARE * span:
+            return None
+        self.reset()
+        return Plateau(step, recent, previous, rise, self.feature, center, half,
+                       (float(visited[0]), float(visited[1])), peg, rpe)
+
+    def reset(self) -> None:
+        """Forget the history: the next report needs a stall of its own (after a report, an edit or a rollback)."""
+        self.returns, self.flat = [], 0
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"returns": list(self.returns), "flat": self.flat, "cycles": self.cycles}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.returns = [float(x) for x in state["returns"]]
+        self.flat, self.cycles = int(state["flat"]), int(state["cycles"])
