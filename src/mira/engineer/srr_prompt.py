@@ -47,6 +47,11 @@ TRIGGERS = {
 }
 """Why SRR was called, in the words of the prompt (:attr:`Evidence.cause`)."""
 
+MAX_SHAPE_STEPS = 100.0
+"""The largest declared range a SHAPE factor may have, in steps of the run's reward per step: a shaping term
+may pay for leaving a state many steps' worth, never so much that the task's own reward stops mattering
+(SRR refuses a wider one; the prompt says so)."""
+
 FACTOR_USAGE = (
     "HOW THE FACTORS ARE USED: the environment pays only at the end of an episode. The per-step reward the agent "
     "learns from is r(s, a, s') = sum_i w_i * f_i + b, fitted to the episodes' returns (PHI factors at s', AUX "
@@ -54,7 +59,8 @@ FACTOR_USAGE = (
     "when it changes which quantities, in which form, the program can express. A SHAPE factor is different: "
     "state-only, never fitted to the returns, its value Psi(s) is a potential that the agent receives as "
     "gamma * Psi(s') - Psi(s) on top of that reward, with the size you write; it changes where the agent looks "
-    "first, not what is optimal (potential-based shaping). Keep it bounded."
+    "first, not what is optimal (potential-based shaping). It must declare a finite range_hint, at most "
+    f"{MAX_SHAPE_STEPS:g} times the reward per step wide, and keep its values within it."
 )
 
 

@@ -33,7 +33,7 @@ import numpy as np
 from mira.engineer.admission import admit_program
 from mira.engineer.dialogue import Verdict, converse
 from mira.engineer.srr_candidates import Candidate, parse_candidates
-from mira.engineer.srr_prompt import Evidence, build_srr_request
+from mira.engineer.srr_prompt import MAX_SHAPE_STEPS, Evidence, build_srr_request
 from mira.factors.checker import parse_range_hint
 from mira.factors.program import FactorProgram, ProgramParseError, code_diff
 from mira.llm.base import LLMBackend, LLMError
@@ -50,9 +50,6 @@ log = logging.getLogger(__name__)
 
 PERMUTATIONS = 1000
 """Permutations of the AUC and Spearman tests: resolves p-values down to 1/1001, well below ``max_p_value``."""
-MAX_SHAPE_STEPS = 100.0
-"""The largest declared range a SHAPE factor may have, in steps of the run's reward per step: a shaping term
-may pay for leaving a state many steps' worth, never so much that the task's own reward stops mattering."""
 LABEL_QUANTILES = (0.3, 0.7)
 """States at or below the first value quantile are negatives, at or above the second positives: the middle
 40%, whose ranking is noise, is left out."""
