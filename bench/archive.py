@@ -27,10 +27,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 ARCHIVE = ROOT / "bench" / "archive"
 
-KEPT = ("eval.csv", "config.json", "status.json", "decomposition.json", "diagnostics.csv", "llm/exchanges.jsonl")
+KEPT = ("eval.csv", "config.json", "status.json", "decomposition.json", "diagnostics.csv", "plateau.csv",
+        "llm/exchanges.jsonl")
 """Files of a run directory that are copied as they are."""
 KEPT_GLOBS = ("programs/*.json", "interventions/*/decision.json", "interventions/*/evidence.json",
-              "interventions/*/attempts.json")
+              "interventions/*/attempts.json", "interventions/*/probation.json", "interventions/*/accepted.diff")
 """Smaller trees of a run directory: its program versions and each intervention's record."""
 
 
