@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import _load_bench
 from mira.engineer.backends import make_backend
 from mira.engineer.offline_srr import propose
 from mira.engineer.srr_prompt import Evidence, build_srr_request
@@ -148,15 +149,10 @@ def test_shape_factors_are_state_only_and_their_values_survive_a_checkpoint() ->
 
 # ------------------------------------------------------------------------------ the escape edit
 
-def _plateau_evidence(card_horizon: int = 1000) -> Evidence:
-    d = {"peg": -1.8, "tpd": 0.1, "pvc": 0.2, "fap": 0.0, "rpe": 2.4}
-    plateau = {"step": 60_000, "recent_median": 130_000.0, "previous_median": 129_500.0, "rise": 0.004,
-               "feature": "torso_height", "center": 0.40, "halfwidth": 0.01, "visited": [0.10, 0.45],
-               "d_peg": -1.8, "d_rpe": 2.4, "reward_per_step": 130.0}
-    return Evidence(step=60_000, d=d, d_raw=d, score=None, threshold=None, gradient={}, contributors=[],
-                    recent_return=130_000.0, baseline_return=129_000.0,
-                    stagnation_band={"feature": "torso_height", "center": 0.40, "halfwidth": 0.01},
-                    attention={}, cause="plateau", plateau=plateau)
+def _plateau_evidence() -> Evidence:
+    """The plateau of a sitting HumanoidStandup policy, as the recorded LLM prompt states it."""
+    evidence: Evidence = _load_bench("llm/plateau").evidence()
+    return evidence
 
 
 def test_the_offline_engineer_answers_a_plateau_with_a_bounded_potential_above_the_band() -> None:

@@ -103,12 +103,16 @@ class CompiledProgram:
 
     def phi(self, view: StateView) -> np.ndarray:
         """Every PHI factor on a batch of states: float64 ``[B, K_phi]``."""
+        return self._of_states(self._phi, view)
+
+    def _of_states(self, compiled: list[tuple[Factor, FactorFunction]], view: StateView) -> np.ndarray:
+        """State-only factors (PHI or SHAPE) on a batch of states: float64 ``[B, K]``, finite."""
         batch = int(view.obs.shape[0])
-        out = np.empty((batch, len(self._phi)), dtype=np.float64)
+        out = np.empty((batch, len(compiled)), dtype=np.float64)
         with np.errstate(all="ignore"):
-            for j, (factor, fn) in enumerate(self._phi):
+            for j, (factor, fn) in enumerate(compiled):
                 out[:, j] = self._run(factor, fn, batch, (view,))
-        return self._finite(out, self._phi)
+        return self._finite(out, compiled)
 
     def aux(self, view: StateView, actions: np.ndarray) -> np.ndarray:
         """Every AUX factor on a batch of states and actions ``[B, act_dim]``: float64 ``[B, K_aux]``."""
@@ -126,12 +130,7 @@ class CompiledProgram:
 
     def shape(self, view: StateView) -> np.ndarray:
         """Every SHAPE factor on a batch of states: float64 ``[B, K_shape]`` (their sum is Ψ)."""
-        batch = int(view.obs.shape[0])
-        out = np.empty((batch, len(self._shape)), dtype=np.float64)
-        with np.errstate(all="ignore"):
-            for j, (factor, fn) in enumerate(self._shape):
-                out[:, j] = self._run(factor, fn, batch, (view,))
-        return self._finite(out, self._shape)
+        return self._of_states(self._shape, view)
 
     def evaluate(self, view: StateView, actions: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Each factor's values by name (AUX factors only when ``actions`` are given)."""
