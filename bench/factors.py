@@ -1,6 +1,6 @@
 """Cost of evaluating the built-in factor programs (compiled, in-process) on batches of states.
 
-    python bench/factors.py            # prints a Markdown table (µs per state) for bench/RESULTS.md
+    python bench/factors.py            # prints a Markdown table (µs per state)
 """
 
 from __future__ import annotations

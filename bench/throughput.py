@@ -45,8 +45,8 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "bench" / "RESULTS.md"
-SECTION = "## Throughput"
+PAGE = ROOT / "docs" / "results.md"
+SECTION = "## Speed"
 SB3 = "sb3"
 
 
@@ -307,11 +307,11 @@ def build_table(results: dict[tuple[str, str, int, str], list[dict[str, Any]]], 
 
 
 def write_section(table: str) -> None:
-    """Replace the measured table inside the Throughput section of RESULTS.md (between markers),
+    """Replace the measured table inside the Speed section of the results page (between markers),
     leaving everything else in the file (other sections, the hand-written notes) alone."""
     begin, end = "<!-- throughput:begin -->", "<!-- throughput:end -->"
     block = f"{begin}\n{table}{end}"
-    text = RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# Benchmark results\n"
+    text = PAGE.read_text(encoding="utf-8") if PAGE.exists() else "# Benchmark results\n"
     if begin in text and end in text:
         text = text[: text.index(begin)] + block + text[text.index(end) + len(end):]
     elif SECTION in text:
@@ -319,7 +319,7 @@ def write_section(table: str) -> None:
         text = text[:i] + "\n\n" + block + "\n" + text[i:]
     else:
         text = text.rstrip("\n") + f"\n\n{SECTION}\n\n{block}\n"
-    RESULTS.write_text(text, encoding="utf-8")
+    PAGE.write_text(text, encoding="utf-8")
 
 
 def main() -> int:
@@ -341,7 +341,7 @@ def main() -> int:
     p.add_argument("--no-sb3", action="store_true", help="only our trainer")
     p.add_argument("--wait-idle", type=float, default=0.0, metavar="S",
                    help="before each run, wait up to S seconds for other processes to use < 0.3 cores")
-    p.add_argument("--no-write", action="store_true", help="print the table, leave bench/RESULTS.md alone")
+    p.add_argument("--no-write", action="store_true", help="print the table, leave docs/results.md alone")
     p.add_argument("--json", default=None, help="also dump every run's numbers to this file")
     # internal: one measurement in this process
     p.add_argument("--worker", choices=("ours", SB3), help=argparse.SUPPRESS)
@@ -392,7 +392,7 @@ def main() -> int:
                                               indent=1), encoding="utf-8")
     if not args.no_write:
         write_section(table)
-        print(f"wrote the table into {RESULTS.relative_to(ROOT)} ({SECTION})")
+        print(f"wrote the table into {PAGE.relative_to(ROOT)} ({SECTION})")
     return 0
 
 

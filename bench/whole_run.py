@@ -10,7 +10,7 @@ with the `sparse` run of the same repeat. For `mira` it also counts the interven
 accepted program edits from the run directory. Unlike ``throughput.py`` (a few thousand steps on a
 small buffer), this is the cost over a budget users run, with the replay buffer growing to its size.
 
-A measurement script, not a test; the table goes to stdout (paste it into bench/RESULTS.md).
+A measurement script, not a test; the table goes to stdout (docs/results.md holds the current figures).
 """
 
 from __future__ import annotations

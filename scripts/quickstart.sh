@@ -9,7 +9,7 @@
 # What a user may see is in README.md ("What the quick start shows"). Table 1's
 # defaults are ΔT = 5,000, a 10-cycle warm-up and two cycles in a row above the threshold (drop the
 # --set flags for those). One intra-op thread: with two, any other job on a 2-core machine stalls
-# every OpenMP barrier (see bench/RESULTS.md).
+# every OpenMP barrier (docs/results.md, Speed).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh

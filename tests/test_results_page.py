@@ -1,0 +1,87 @@
+"""``bench/results_page.py``: the results page is what the archived runs give, and its figures over
+seeds say what they are (mean and [min, max] below 5 seeds, never an interval over 3)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+
+def _run(root: Path, method: str, seed: int, finals: tuple[float, float], steps: int = 20_000) -> None:
+    run = root / method / f"seed{seed}"
+    run.mkdir(parents=True)
+    config = {"task": "halfcheetah", "method": method, "algo": "sac", "seed": seed, "steps": steps,
+              "program": None, "agent": {"lr": 3e-4}, "eval_every": 10_000, "eval_episodes": 10}
+    (run / "config.json").write_text(json.dumps({"config": config, "environment": {"source": "abc1234def",
+                                                                                    "cpu": "Test CPU"}}))
+    (run / "status.json").write_text(json.dumps({"status": "finished", "step": steps}))
+    (run / "eval.csv").write_text("step,return_mean\n" + f"10000,{finals[0]}\n20000,{finals[1]}\n")
+
+
+def _spec(tmp_path: Path, runs: Path, seeds_note: str = "") -> Path:
+    spec = tmp_path / "results.toml"
+    spec.write_text(f'''intro = "# Results"
+[[table]]
+id = "t"
+title = "A table"
+question = "Does it learn?"
+budgets = [10000, 20000]
+command = "mira sweep ..."
+paper = {{ dense = 100, mira = 120 }}
+runs = ["{runs}"]
+''')
+    return spec
+
+
+def test_the_page_is_what_the_archives_give(load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    assert page.main(["--check"]) == 0
+
+
+def test_three_seeds_give_mean_and_extremes_five_an_interval(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    runs = tmp_path / "runs"
+    for seed, final in enumerate((10.0, 20.0, 60.0)):
+        _run(runs, "dense", seed, (final / 2, final))
+    for seed, final in enumerate((1.0, 2.0, 3.0, 4.0, 100.0)):
+        _run(runs, "mira", seed, (0.0, final))
+    meta, tables = page.load_spec(_spec(tmp_path, runs))
+
+    text = page.render(meta, tables, figures=None)
+
+    dense = next(line for line in text.splitlines() if line.startswith("| Dense"))
+    mira = next(line for line in text.splitlines() if line.startswith("| MIRA"))
+    assert "mean 30.0 [10.0, 60.0]" in dense and "CI" not in dense
+    assert "| 0, 1, 2 |" in dense and dense.rstrip().endswith("| 100 |")
+    # 5 seeds: the IQM (drops one seed at each end: 2, 3, 4) and an interval, not the mean (22).
+    assert "| 3.00 [" in mira and "mean" not in mira
+    # half of dense's 30 is 15: seed 0 (5, 10) never reaches it, seed 1 at 20k, seed 2 at 10k
+    assert "15k (2/3)" in dense
+    assert "`abc1234`: dense, mira" in text and "Test CPU" in text
+
+
+def test_a_run_short_of_the_budget_is_left_out_and_said(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    runs = tmp_path / "runs"
+    _run(runs, "dense", 0, (1.0, 2.0))
+    _run(runs, "dense", 1, (1.0, 2.0), steps=10_000)
+    meta, tables = page.load_spec(_spec(tmp_path, runs))
+
+    text = page.render(meta, tables, figures=None)
+
+    assert "| Dense R (oracle) | 0 |" in text
+    assert "seed1` stopped at 10,000 steps: left out" in text
+
+
+def test_a_malformed_spec_names_the_table_and_key(tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    spec = tmp_path / "results.toml"
+    spec.write_text('[[table]]\nid = "hc"\ntitle = "t"\nquestion = "q"\nbudgets = [100]\nruns = []\n')
+    with pytest.raises(page.SpecError, match="table 'hc': missing key 'command'"):
+        page.load_spec(spec)
