@@ -16,4 +16,4 @@ quickstart:
 
 bench:
 	python bench/throughput.py
-	python bench/learning.py
+	python bench/results_page.py

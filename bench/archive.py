@@ -9,8 +9,8 @@ intervention's decision, evidence and (where a reply was sent back) attempts, an
 (``llm/exchanges.jsonl``: every prompt and reply, replayable with ``mira llm export``) — to
 ``bench/archive/<OUT's name>/``, keeping the layout, so that
 
-    python bench/learning.py --table-only --out bench/archive/l19c --steps 100000 --at 50000,100000
-    python bench/flawed.py --task halfcheetah --table-only --out bench/archive/flawed_loo --steps 50000
+    mira report bench/archive/hc100_ircr --out report
+    python bench/results_page.py          # the tables of docs/results.md, from bench/results.toml
 
 read the archive as they read the runs. A run still training is copied as far as it got; copying again
 refreshes it.

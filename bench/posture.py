@@ -3,8 +3,8 @@
 A return says how well a policy did, not where it went. This loads a run's checkpoint, replays the
 run's own evaluation episodes (the same seeds, the deterministic policy, so the return matches the
 run's ``eval.csv`` at that step) and summarises the named task features over every step: mean, 10th
-and 90th percentiles, and the share of steps inside each ``--share`` region. Used for the results page (``docs/results.md``)
-to say why a flawed program is or is not damaging at a budget (e.g. whether the region a gate pays
+and 90th percentiles, and the share of steps inside each ``--share`` region. Used for the results page
+(``docs/results.md``) to say why a flawed program is or is not damaging at a budget (e.g. whether the region a gate pays
 in is where the policies go).
 
     python bench/posture.py RUN [RUN ...] --features torso_height,uprightness --share "uprightness<0.3"

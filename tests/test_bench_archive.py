@@ -26,7 +26,7 @@ def test_archive_keeps_curves_programs_and_decisions_not_checkpoints(
     archive = load_bench("archive")
     out = tmp_path / "runs" / "grid"
     _fake_run(out / "mira-sac-s0", 42.0)
-    _fake_run(out / "halfcheetah" / "no_progress" / "hars-sac-s1", 7.0)  # bench/flawed.py's deeper layout
+    _fake_run(out / "halfcheetah" / "no_progress" / "hars-sac-s1", 7.0)  # the older flawed-benchmark layout
     (out / "not-a-run").mkdir()
 
     copied = archive.archive(out, tmp_path / "archive")

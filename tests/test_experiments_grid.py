@@ -294,3 +294,44 @@ def test_the_paper_preset_runs_every_run_with_table_1(tmp_path: Path) -> None:
     assert len(commands) == len(plans) == len(grid.runs())
     assert all("--preset paper" in line for line in commands)
     assert any("--task humanoid " in line and "--algo sac" in line for line in commands)
+
+
+def test_a_programs_axis_gives_each_initial_program_its_runs(tmp_path: Path) -> None:
+    flawed = _write(tmp_path, "no_progress.json", "{}")
+    grid = SweepGrid(["halfcheetah"], ["hars"], ["sac"], [0], 600, programs=["", str(flawed)]).validate()
+    runs = grid.runs()
+    assert [r.run_id for r in runs] == ["halfcheetah/sac/hars/seed0", "halfcheetah/no_progress/sac/hars/seed0"]
+    assert runs[1].run_dir("/x") == Path("/x/halfcheetah/no_progress/sac/hars/seed0")
+    assert RunSpec.from_dict(runs[1].to_dict()) == runs[1]
+    start = train_command(runs[1], tmp_path, Plan("start", "new run"))
+    assert start[start.index("--program") + 1] == str(flawed)
+    assert "--program" not in train_command(runs[0], tmp_path, Plan("start", "new run"))
+    # A run directory that holds a run of another initial program is not taken for this one's.
+    _fake_run(runs[1].run_dir(tmp_path), method="hars")
+    conflict = plan_run(runs[1], tmp_path)
+    assert conflict.action == "conflict" and "the task's own program" in conflict.reason
+
+
+def test_a_sweep_file_names_programs_beside_it_and_the_task_own(tmp_path: Path) -> None:
+    (tmp_path / "flawed").mkdir()
+    _write(tmp_path / "flawed", "wrong_gate.json", "{}")
+    path = _write(tmp_path, "s.toml", 'tasks = ["halfcheetah"]\nprograms = ["task", "flawed/wrong_gate.json"]\n'
+                                      'methods = ["mira"]\nalgos = ["sac"]\nseeds = 1\nsteps = 600\n')
+    grid, _ = build_grid(file=path)
+    assert grid.programs == ["", str((tmp_path / "flawed" / "wrong_gate.json").resolve())]
+    assert len(grid.runs()) == 2
+
+
+@pytest.mark.parametrize("programs, message", [
+    (["missing.json"], "initial program .*missing.json does not exist"),
+    (["a/x.json", "b/x.json"], "two initial programs share a directory name"),
+])
+def test_bad_programs_are_usage_errors(tmp_path: Path, programs: list[str], message: str) -> None:
+    for sub in ("a", "b"):
+        (tmp_path / sub).mkdir()
+        _write(tmp_path / sub, "x.json", "{}")
+    with pytest.raises(UsageError, match=message):
+        SweepGrid(["halfcheetah"], ["mira"], ["sac"], [0], 600,
+                  programs=[str(tmp_path / p) for p in programs]).validate()
+    with pytest.raises(UsageError, match="--program is set by the sweep grid"):
+        SweepGrid(["halfcheetah"], ["mira"], ["sac"], [0], 600, ["--program", "x.json"]).validate()

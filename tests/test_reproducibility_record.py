@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from mira.cli import REPRODUCIBILITY_KEYS, _environment_facts, main, reproducibility_drift, source_revision
+from mira.cli import REPRODUCIBILITY_KEYS, environment_facts, main, reproducibility_drift, source_revision
 from mira.explain import explain
 
 NOW = {"cpu": "Intel(R) Xeon(R) Processor", "cpu_capability": "AVX512", "torch": "2.13.0+cpu",
@@ -19,7 +19,7 @@ NOW = {"cpu": "Intel(R) Xeon(R) Processor", "cpu_capability": "AVX512", "torch":
 
 
 def test_environment_records_every_reproducibility_key() -> None:
-    facts = _environment_facts()
+    facts = environment_facts()
     for key in REPRODUCIBILITY_KEYS:
         # A wheel has no source tree to name; every other key is always known.
         assert (isinstance(facts[key], str) and facts[key]) or (key == "source_tree" and facts[key] is None), key
@@ -77,7 +77,7 @@ def test_resume_on_another_cpu_warns(tmp_path: Path, fast_train_args: list[str],
     assert main(["train", "--task", "halfcheetah", "--method", "sparse", "--steps", "600", "--seed", "0",
                  "--out", str(run), *fast_train_args]) == 0
     config = json.loads((run / "config.json").read_text())
-    assert config["environment"]["cpu"] == _environment_facts()["cpu"]
+    assert config["environment"]["cpu"] == environment_facts()["cpu"]
     assert f"Machine: {config['environment']['cpu']} (" in explain(run)
     if config["environment"]["source"]:
         assert f"at commit {config['environment']['source'][:12]}" in explain(run)

@@ -90,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _environment_facts() -> dict[str, Any]:
+def environment_facts() -> dict[str, Any]:
     import gymnasium
     import mujoco
     import numpy
@@ -196,7 +196,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.steps is not None and args.steps != cfg.steps:
             cfg = extend_budget(path, saved, cfg, args.steps)
         card = load_task(cfg.task)
-        drift = reproducibility_drift(saved.get("environment") or {}, _environment_facts())
+        drift = reproducibility_drift(saved.get("environment") or {}, environment_facts())
         if drift:
             logging.getLogger(__name__).warning(
                 "--resume %s on a different machine, software or source (%s): the run continues from its checkpoint, "
@@ -220,7 +220,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         if not args.resume:
             run.write_config({"config": to_dict(cfg), "task_card": card_to_dict(card),
                               "method": {"description": parts.description, **parts.reward.describe()},
-                              "environment": _environment_facts()})
+                              "environment": environment_facts()})
         # Without a terminal (a log file, a pipe) progress comes as plain lines, never as a redrawn bar.
         quiet = bool(args.quiet) or not sys.stderr.isatty()
         setup = TrainSetup(config=cfg, card=card, device=resolve_device(cfg.device), reward=parts.reward,

@@ -33,13 +33,17 @@ def add_sweep_parser(subparsers: Any) -> argparse.ArgumentParser:
 
     presets = "; ".join(f"{k}: {v}" for k, v in PRESET_NOTES.items())
     p: argparse.ArgumentParser = subparsers.add_parser(
-        "sweep", help="run tasks × methods × algos × seeds (local pool or Ray), resumably",
+        "sweep", help="run tasks × programs × methods × algos × seeds (local pool or Ray), resumably",
         description="Run every combination as its own `mira train` subprocess, each a run directory "
                     "OUT/<task>/<algo>/<method>/seed<k>. Rerunning the same command skips finished runs and "
                     "resumes interrupted ones. `tensorboard --logdir OUT` shows every run. "
                     f"Presets — {presets}",
     )
     p.add_argument("--tasks", default=None, help="comma-separated tasks (built-in names or task-card files)")
+    p.add_argument("--programs", default=None,
+                   help="comma-separated initial program files (mira train --program), one run each; 'task' "
+                        "is the task's own program (the default: it alone). Runs from a file go to "
+                        "OUT/<task>/<file stem>/<algo>/<method>/seed<k>")
     p.add_argument("--methods", default=None,
                    help="comma-separated methods, or 'all' (every registered method)")
     p.add_argument("--algos", default=None, help="comma-separated algos (sac, ddpg)")
@@ -99,11 +103,12 @@ def add_report_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from mira.experiments.grid import build_grid, parse_names, parse_seeds, split_train_args
+    from mira.experiments.grid import build_grid, parse_names, parse_programs, parse_seeds, split_train_args
     from mira.experiments.sweep import SweepOptions, dry_run, run_sweep
 
     overrides: dict[str, Any] = {
         "tasks": parse_names(args.tasks, "--tasks") if args.tasks else None,
+        "programs": parse_programs(args.programs, "--programs") if args.programs else None,
         "methods": parse_names(args.methods, "--methods") if args.methods else None,
         "algos": parse_names(args.algos, "--algos") if args.algos else None,
         "seeds": parse_seeds(args.seeds, "--seeds") if args.seeds else None,

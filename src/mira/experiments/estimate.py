@@ -61,7 +61,8 @@ def probe_command(spec: RunSpec, run_dir: Path, warmup: int, measured: int) -> l
     total = warmup + measured
     half = max(1, measured // 2)
     return [sys.executable, "-m", "mira.cli", "train", "--task", spec.task, "--method", spec.method,
-            "--algo", spec.algo, "--seed", str(spec.seed), "--out", str(run_dir), *spec.train_args,
+            "--algo", spec.algo, "--seed", str(spec.seed), "--out", str(run_dir),
+            *(["--program", spec.program] if spec.program else []), *spec.train_args,
             "--steps", str(total + half), "--learning-starts", str(warmup), "--log-every", str(half),
             "--eval-every", str(total + half), "--eval-episodes", "1", "--checkpoint-every", str(total + half),
             "--quiet"]

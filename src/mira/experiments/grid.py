@@ -11,6 +11,7 @@ steps)::
 
     preset      = "paper-small"                 # start from a preset, then override
     tasks       = ["halfcheetah", "humanoidstandup"]   # built-in names or task-card paths
+    programs    = ["task", "flawed/no_progress.json"]  # initial programs ("task": the task's own)
     methods     = ["dense", "sparse", "mira"]   # "all" = every method registered in mira.methods
     algos       = ["sac"]
     seeds       = 3                             # an integer K means seeds 0..K-1; or a list [0, 1, 2]
@@ -42,13 +43,16 @@ from typing import Any
 from mira.errors import UsageError
 
 # Flags the grid owns: a run's identity and its directory. They may not be passed through.
-GRID_FLAGS = ("--task", "--method", "--algo", "--seed", "--steps", "--out", "--resume", "--overwrite")
+GRID_FLAGS = ("--task", "--program", "--method", "--algo", "--seed", "--steps", "--out", "--resume", "--overwrite")
+
+TASK_PROGRAM = "task"
+"""In a list of initial programs, the task's own program (``mira train`` without ``--program``)."""
 
 # The paper's method order in Tables 2/3, ablations next to MIRA; unknown methods follow, sorted.
 METHOD_ORDER = ("dense", "mira", "mira-no-mcm", "mira-no-srr", "lare", "rd", "ircr", "vib", "sparse")
 
 SETTING_KEYS = ("workers", "backend", "address", "cpus_per_run", "retries")
-FILE_KEYS = ("preset", "tasks", "methods", "algos", "seeds", "steps", "train_args", "train", *SETTING_KEYS)
+FILE_KEYS = ("preset", "tasks", "programs", "methods", "algos", "seeds", "steps", "train_args", "train", *SETTING_KEYS)
 
 
 def available_methods() -> list[str]:
@@ -72,6 +76,11 @@ def task_label(task: str) -> str:
     return task
 
 
+def program_label(program: str) -> str:
+    """Directory name of an initial program: its file's stem; "" for the task's own program."""
+    return Path(program).stem if program else ""
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One run of a sweep: a normal ``mira train`` run directory under the sweep's output."""
@@ -82,22 +91,30 @@ class RunSpec:
     seed: int
     steps: int
     train_args: tuple[str, ...] = ()
+    program: str = ""
+    """The initial program file (``mira train --program``); "" for the task's own program."""
+
+    def _parts(self) -> list[str]:
+        label = program_label(self.program)
+        return [task_label(self.task), *([label] if label else []), self.algo, self.method, f"seed{self.seed}"]
 
     @property
     def run_id(self) -> str:
-        return f"{task_label(self.task)}/{self.algo}/{self.method}/seed{self.seed}"
+        return "/".join(self._parts())
 
     def run_dir(self, out: str | Path) -> Path:
-        return Path(out) / task_label(self.task) / self.algo / self.method / f"seed{self.seed}"
+        """``OUT/<task>/<algo>/<method>/seed<k>``, with the program's stem after the task when it has one."""
+        return Path(out).joinpath(*self._parts())
 
     def to_dict(self) -> dict[str, Any]:
         return {"task": self.task, "method": self.method, "algo": self.algo, "seed": self.seed,
-                "steps": self.steps, "train_args": list(self.train_args)}
+                "steps": self.steps, "train_args": list(self.train_args), "program": self.program}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> RunSpec:
         return cls(str(data["task"]), str(data["method"]), str(data["algo"]), int(data["seed"]),
-                   int(data["steps"]), tuple(str(a) for a in data.get("train_args", ())))
+                   int(data["steps"]), tuple(str(a) for a in data.get("train_args", ())),
+                   str(data.get("program") or ""))
 
 
 @dataclass
@@ -111,18 +128,22 @@ class SweepGrid:
     steps: int
     train_args: list[str] = field(default_factory=list)
     preset: str | None = None
+    programs: list[str] = field(default_factory=lambda: [""])
+    """Initial program files every run of a task starts from, one run each; "" is the task's own."""
 
     def runs(self) -> list[RunSpec]:
         """Every run, seed-major so that a partial sweep already covers every method of early seeds;
         within a seed the Dense oracle comes first (sample efficiency is measured against it)."""
         methods = order_methods(self.methods)
-        return [RunSpec(t, m, a, s, self.steps, tuple(self.train_args))
-                for s in self.seeds for t in self.tasks for a in self.algos for m in methods]
+        return [RunSpec(t, m, a, s, self.steps, tuple(self.train_args), p)
+                for s in self.seeds for t in self.tasks for p in self.programs for a in self.algos
+                for m in methods]
 
     def to_dict(self) -> dict[str, Any]:
-        return {"tasks": list(self.tasks), "methods": list(self.methods), "algos": list(self.algos),
-                "seeds": list(self.seeds), "steps": self.steps, "train_args": list(self.train_args),
-                "preset": self.preset}
+        out = {"tasks": list(self.tasks), "methods": list(self.methods), "algos": list(self.algos),
+               "seeds": list(self.seeds), "steps": self.steps, "train_args": list(self.train_args),
+               "preset": self.preset}
+        return out if self.programs == [""] else {**out, "programs": list(self.programs)}
 
     def validate(self) -> SweepGrid:
         """Check every axis and the pass-through flags; return self."""
@@ -138,6 +159,7 @@ class SweepGrid:
         labels = [task_label(t) for t in self.tasks]
         if len(set(labels)) != len(labels):
             raise UsageError(f"two tasks share a directory name ({', '.join(labels)})")
+        check_programs(self.programs, labels)
         if any(s < 0 for s in self.seeds) or len(set(self.seeds)) != len(self.seeds):
             raise UsageError(f"seeds must be distinct non-negative integers, got {self.seeds}")
         if self.steps <= 0:
@@ -171,6 +193,41 @@ def check_task(task: str) -> None:
         return
     raise UsageError(f"unknown task {task!r} (built-in: {', '.join(builtin_task_names())}, "
                      "or a .toml/.yaml task card)")
+
+
+def check_programs(programs: Sequence[str], task_labels: Sequence[str] = ()) -> None:
+    """Each initial program is "" (the task's own) or an existing file; their directory names differ
+    from one another and from the algos' level below the task."""
+    if not programs:
+        raise UsageError("no programs given (--programs task,FILE.json or 'programs' in the sweep file)")
+    for program in programs:
+        if program and not Path(program).is_file():
+            raise UsageError(f"initial program {program} does not exist")
+    labels = [program_label(p) for p in programs]
+    if len(set(labels)) != len(labels):
+        names = ", ".join(label or TASK_PROGRAM for label in labels)
+        raise UsageError(f"two initial programs share a directory name ({names})")
+    from mira.agents import ALGOS
+
+    clash = sorted(set(labels) & set(ALGOS))
+    if clash:
+        raise UsageError(f"an initial program may not be named like an algo ({clash[0]}.json): rename the file")
+
+
+def parse_programs(value: Any, where: str, base: Path | None = None) -> list[str]:
+    """Initial programs from a comma-separated string or a list: ``task`` is the task's own program;
+    a file becomes an absolute path (relative ones are read from ``base``, then the working directory),
+    so that a run started from another directory (a Ray worker's) finds it."""
+    programs = []
+    for name in parse_names(value, where):
+        if name == TASK_PROGRAM:
+            programs.append("")
+            continue
+        path = Path(name)
+        if base is not None and not path.is_absolute() and (base / path).exists():
+            path = base / path
+        programs.append(str(path.resolve()))
+    return programs
 
 
 def check_train_args(train_args: Sequence[str]) -> None:
@@ -358,6 +415,8 @@ def load_sweep_file(path: str | Path) -> dict[str, Any]:
             out[key] = parse_names(data[key], f"{where}: {key}")
     if "tasks" in out:
         out["tasks"] = [_resolve_task(t, file.parent) for t in out["tasks"]]
+    if "programs" in data:
+        out["programs"] = parse_programs(data["programs"], f"{where}: programs", file.parent)
     if "seeds" in data:
         out["seeds"] = parse_seeds(data["seeds"], f"{where}: seeds")
     for key in ("steps", "workers", "retries"):
@@ -398,6 +457,8 @@ def load_sweep_file(path: str | Path) -> dict[str, Any]:
             check_algo(a)
         for t in out.get("tasks", []):
             check_task(t)
+        if "programs" in out:
+            check_programs(out["programs"])
     except UsageError as exc:
         raise UsageError(f"{where}: {exc}") from None
     return out
@@ -455,5 +516,5 @@ def build_grid(*, preset: str | None = None, file: str | Path | None = None,
     tasks = [str(Path(t).resolve()) if _is_card(t) and Path(t).is_file() else t for t in merged["tasks"]]
     grid = SweepGrid(tasks, list(merged["methods"]), list(merged["algos"]),
                      list(merged["seeds"]), int(merged["steps"]), list(merged.get("train_args", [])),
-                     preset=name or None)
+                     preset=name or None, programs=list(merged.get("programs", [""])))
     return grid.validate(), settings

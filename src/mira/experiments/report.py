@@ -64,7 +64,7 @@ from mira.runio.csvlog import read_csv
 METHOD_TITLES = {
     "dense": "Dense R (oracle)", "sparse": "Sparse R", "hars": "HARS (inner loop only)", "mira": "MIRA",
     "mira-no-mcm": "MIRA w/o MCM",
-    "mira-no-srr": "MIRA w/o SRR", "lare": "LaRe", "rd": "RD", "ircr": "IRCR", "vib": "VIB",
+    "mira-no-srr": "MIRA w/o SRR", "lare": "LaRe", "rd": "RD", "ircr": "IRCR", "vib": "VIB", "sb3": "SB3 SAC (dense R)",
 }
 TASK_ORDER = ("halfcheetah", "humanoidstandup", "humanoid")
 ALGO_ORDER = ("ddpg", "sac")

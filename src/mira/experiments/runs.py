@@ -62,6 +62,10 @@ def plan_run(spec: RunSpec, out: str | Path) -> Plan:
             return Plan("conflict", f"{run} holds a run with {key}={cfg.get(key)!r}, the grid wants "
                                     f"{want!r}; "
                                     "move it away or use another --out")
+    have = str(cfg.get("program") or "")
+    if (str(Path(have).resolve()) if have else "") != (str(Path(spec.program).resolve()) if spec.program else ""):
+        return Plan("conflict", f"{run} holds a run started from {_program_text(have)}, the grid wants "
+                                f"{_program_text(spec.program)}; move it away or use another --out")
     if task_label(str(cfg.get("task", ""))) != task_label(spec.task):
         return Plan("conflict", f"{run} holds a run of task {cfg.get('task')!r}, the grid wants "
                                 f"{spec.task!r}")
@@ -81,6 +85,10 @@ def plan_run(spec: RunSpec, out: str | Path) -> Plan:
                 overwrite=True)
 
 
+def _program_text(program: str) -> str:
+    return f"program {program}" if program else "the task's own program"
+
+
 def train_command(spec: RunSpec, out: str | Path, plan: Plan, python: str | None = None) -> list[str]:
     """The ``mira train`` subprocess command line carrying out ``plan``."""
     base = [python or sys.executable, "-m", "mira.cli", "train"]
@@ -89,6 +97,8 @@ def train_command(spec: RunSpec, out: str | Path, plan: Plan, python: str | None
         return [*base, "--resume", run, "--steps", str(spec.steps), "--quiet"]
     cmd = [*base, "--task", spec.task, "--method", spec.method, "--algo", spec.algo, "--seed", str(spec.seed),
            "--steps", str(spec.steps), "--out", run]
+    if spec.program:
+        cmd += ["--program", spec.program]
     if plan.overwrite:
         cmd.append("--overwrite")
     extra = list(spec.train_args)
@@ -106,7 +116,8 @@ def _flat_id(spec: RunSpec) -> str:
 
 def state_path(spec: RunSpec, out: str | Path) -> Path:
     root = Path(out) / STATE_DIR / "state"
-    return root / task_label(spec.task) / spec.algo / spec.method / f"seed{spec.seed}.json"
+    parts = spec.run_id.split("/")
+    return root.joinpath(*parts[:-1], f"{parts[-1]}.json")
 
 
 def log_path(spec: RunSpec, out: str | Path) -> Path:

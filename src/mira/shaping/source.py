@@ -15,8 +15,8 @@ keeps Φ(s′), as the critic keeps bootstrapping.
 one and not fitted to the returns (the head never sees them, so r̂ and its weights are the same with or
 without them). Why the factor itself rather than a learned Φ over it: a learned Φ is fitted to r̂ and so
 refits an escape ramp towards what the returns already pay (its weight goes to about 0), and at κ = 1 on
-HumanoidStandup a Φ of the returns' scale swamped r̂'s differences between actions (``docs/results.md``, design measurements);
-a written potential keeps the size its author gave it, which the reward engineer sets against the
+HumanoidStandup a Φ of the returns' scale swamped r̂'s differences between actions (``docs/results.md``,
+design measurements); a written potential keeps the size its author gave it, which the reward engineer sets against the
 program's per-step scale. By Ng et al.'s invariance, γΨ(s′) − Ψ(s) leaves the optimal policies of r̂
 unchanged; it only changes where the agent looks first. The pieces:
 
