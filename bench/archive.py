@@ -9,7 +9,7 @@ intervention's decision, evidence and (where a reply was sent back) attempts, an
 (``llm/exchanges.jsonl``: every prompt and reply, replayable with ``mira llm export``) — to
 ``bench/archive/<OUT's name>/``, keeping the layout, so that
 
-    mira report bench/archive/hc100_ircr --out report
+    mira report bench/archive/hc100_sac_ircr --out report
     python bench/results_page.py          # the tables of docs/results.md, from bench/results.toml
 
 read the archive as they read the runs. A run still training is copied as far as it got; copying again

@@ -14,7 +14,8 @@ from mira.config_history import REMOVED_FIELDS
 from mira.errors import UsageError
 
 ROOT = Path(__file__).resolve().parents[1]
-ARCHIVED = ROOT / "bench" / "archive" / "llm_hc" / "halfcheetah" / "no_progress" / "mira-sac-s0" / "config.json"
+ARCHIVED = ROOT / "bench" / "archive" / "hc100_flawed_llm" / "halfcheetah" / "no_progress" / "mira-sac-s0"
+ARCHIVED_CONFIG = ARCHIVED / "config.json"
 
 
 def _leaves(obj: object, prefix: str = "") -> list[str]:
@@ -35,7 +36,7 @@ def test_at_most_sixty_fields_reach_the_command_line() -> None:
 
 
 def test_a_config_written_before_the_removals_loads_as_the_same_run() -> None:
-    saved = json.loads(ARCHIVED.read_text(encoding="utf-8"))["config"]
+    saved = json.loads(ARCHIVED_CONFIG.read_text(encoding="utf-8"))["config"]
     assert "baselines" in saved and "mode" in saved["mira"]  # written with the old fields
     cfg = from_dict(TrainConfig, drop_removed_fields(saved))
     assert cfg.method == saved["method"] and cfg.seed == saved["seed"]
@@ -44,7 +45,7 @@ def test_a_config_written_before_the_removals_loads_as_the_same_run() -> None:
 
 
 def test_a_removed_field_at_another_value_is_refused_by_name() -> None:
-    saved = json.loads(ARCHIVED.read_text(encoding="utf-8"))["config"]
+    saved = json.loads(ARCHIVED_CONFIG.read_text(encoding="utf-8"))["config"]
     changed = copy.deepcopy(saved)
     changed["hars"]["decompose_nonneg"] = True
     with pytest.raises(UsageError, match=r"hars\.decompose_nonneg = True"):

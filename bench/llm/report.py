@@ -8,7 +8,7 @@ final 10% of the budget). Per flaw and engineer: mean and [min, max] over seeds 
 interval), how many seeds repaired the flaw (final return at least 70% of good-program ``hars``,
 the flawed-program benchmark's criterion).
 
-    python bench/llm/report.py --llm bench/archive/llm_hc --offline bench/archive/flawed_100k --steps 100000
+    python bench/llm/report.py --llm bench/archive/hc100_flawed_llm --offline bench/archive/hc100_flawed --steps 100000
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from mira.experiments.metrics import asymptotic_performance
 
 FLAWS = ("no_progress", "abs_velocity", "wrong_gate", "saturated_velocity")
 GOOD_HARS = 5374.0
-"""Good-program ``hars`` on HalfCheetah at 100k, seeds 0–2 (``bench/archive/flawed_100k``'s table)."""
+"""Good-program ``hars`` on HalfCheetah at 100k, seeds 0–2 (``bench/archive/hc100_flawed``'s table)."""
 REPAIRED = 0.70
 
 
