@@ -159,7 +159,7 @@ class SweepGrid:
         labels = [task_label(t) for t in self.tasks]
         if len(set(labels)) != len(labels):
             raise UsageError(f"two tasks share a directory name ({', '.join(labels)})")
-        check_programs(self.programs, labels)
+        check_programs(self.programs)
         if any(s < 0 for s in self.seeds) or len(set(self.seeds)) != len(self.seeds):
             raise UsageError(f"seeds must be distinct non-negative integers, got {self.seeds}")
         if self.steps <= 0:
@@ -195,7 +195,7 @@ def check_task(task: str) -> None:
                      "or a .toml/.yaml task card)")
 
 
-def check_programs(programs: Sequence[str], task_labels: Sequence[str] = ()) -> None:
+def check_programs(programs: Sequence[str]) -> None:
     """Each initial program is "" (the task's own) or an existing file; their directory names differ
     from one another and from the algos' level below the task."""
     if not programs:
