@@ -15,7 +15,7 @@ intervention's decision, evidence and (where a reply was sent back) attempts, an
 read the archive as they read the runs. A run still training is copied as far as it got; copying again
 refreshes it.
 
-    python bench/archive.py bench/runs/l19c bench/runs/flawed_loo
+    python bench/archive.py bench/runs/hc100 --as hc100_sac_dense   # the folder named by what it holds
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 ARCHIVE = ROOT / "bench" / "archive"
 
 KEPT = ("eval.csv", "config.json", "status.json", "decomposition.json", "diagnostics.csv", "plateau.csv",
-        "llm/exchanges.jsonl")
+        "posture.json", "llm/exchanges.jsonl")
 """Files of a run directory that are copied as they are."""
 KEPT_GLOBS = ("programs/*.json", "interventions/*/decision.json", "interventions/*/evidence.json",
               "interventions/*/attempts.json", "interventions/*/probation.json", "interventions/*/accepted.diff")
@@ -40,13 +40,14 @@ def run_dirs(out: Path) -> list[Path]:
     return sorted(p.parent for p in out.rglob("config.json") if (p.parent / "eval.csv").exists())
 
 
-def archive(out: Path, dest_root: Path = ARCHIVE) -> list[Path]:
-    """Copy the kept files of every run under ``out`` to ``dest_root/<out.name>/``; returns the runs copied."""
+def archive(out: Path, dest_root: Path = ARCHIVE, name: str | None = None) -> list[Path]:
+    """Copy the kept files of every run under ``out`` to ``dest_root/<name or out.name>/``; returns the runs
+    copied."""
     if not out.is_dir():
         raise SystemExit(f"archive: {out} is not a directory of runs")
     copied = []
     for run in run_dirs(out):
-        dest = dest_root / out.name / run.relative_to(out)
+        dest = dest_root / (name or out.name) / run.relative_to(out)
         files = [run / name for name in KEPT if (run / name).exists()]
         files += [p for pattern in KEPT_GLOBS for p in sorted(run.glob(pattern))]
         for src in files:
@@ -59,12 +60,16 @@ def archive(out: Path, dest_root: Path = ARCHIVE) -> list[Path]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("outs", nargs="+", type=Path, help="benchmark output directories (e.g. bench/runs/l19c)")
+    ap.add_argument("outs", nargs="+", type=Path, help="benchmark output directories (e.g. bench/runs/hc100)")
     ap.add_argument("--dest", type=Path, default=ARCHIVE, help="archive root (default: bench/archive)")
+    ap.add_argument("--as", dest="name", default=None,
+                    help="the archive folder's name, saying what it holds (default: OUT's name; one OUT only)")
     args = ap.parse_args()
+    if args.name and len(args.outs) > 1:
+        ap.error("--as names one archive folder: give one OUT")
     for out in args.outs:
-        runs = archive(out, args.dest)
-        print(f"archive: {len(runs)} runs of {out} -> {args.dest / out.name}")
+        runs = archive(out, args.dest, args.name)
+        print(f"archive: {len(runs)} runs of {out} -> {args.dest / (args.name or out.name)}")
 
 
 if __name__ == "__main__":

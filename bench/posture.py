@@ -3,11 +3,13 @@
 A return says how well a policy did, not where it went. This loads a run's checkpoint, replays the
 run's own evaluation episodes (the same seeds, the deterministic policy, so the return matches the
 run's ``eval.csv`` at that step) and summarises the named task features over every step: mean, 10th
-and 90th percentiles, and the share of steps inside each ``--share`` region. Used for the results page
-(``docs/results.md``) to say why a flawed program is or is not damaging at a budget (e.g. whether the region a gate pays
-in is where the policies go).
+and 90th percentiles, and the share of steps inside each ``--share`` region: whether a HumanoidStandup
+policy sits or stands, or whether the region a flawed program's gate pays in is where the policies go.
+``--write`` keeps the summary as ``posture.json`` in the run directory, which ``bench/archive.py``
+keeps and the results page (``docs/results.md``) reads.
 
     python bench/posture.py RUN [RUN ...] --features torso_height,uprightness --share "uprightness<0.3"
+    python bench/posture.py RUN --features torso_height --share "torso_height>0.8" --episodes 10 --write
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from mira.agents import make_agent
 from mira.agents.base import AgentConfig
 from mira.config import from_dict
 from mira.loop.trainer import EVAL_SEED_OFFSET
+from mira.runio.atomic import atomic_write_json
 from mira.runio.checkpoint import list_checkpoints, load_checkpoint
 from mira.runio.csvlog import read_csv
 from mira.tasks import load_task, make_env
@@ -105,6 +108,7 @@ def main() -> None:
                    "whose share of the steps is reported (repeatable)")
     p.add_argument("--episodes", type=int, default=5, help="evaluation episodes to replay (the run's first N)")
     p.add_argument("--step", type=int, default=None, help="checkpoint step (default: the latest)")
+    p.add_argument("--write", action="store_true", help="also write RUN/posture.json (kept by bench/archive.py)")
     args = p.parse_args()
     torch.set_num_threads(1)
     features = [f.strip() for f in args.features.split(",") if f.strip()]
@@ -120,6 +124,11 @@ def main() -> None:
                  *[f"{m:.2f} [{lo:.2f}, {hi:.2f}]" for m, lo, hi in r.features.values()],
                  *[f"{s:.0%}" for s in r.shares.values()]]
         print("| " + " | ".join(cells) + " |")
+        if args.write:
+            atomic_write_json(run / "posture.json", {
+                "step": r.step, "episodes": args.episodes, "return": r.ret, "logged": r.logged,
+                "features": {name: {"mean": m, "p10": lo, "p90": hi} for name, (m, lo, hi) in r.features.items()},
+                "shares": r.shares})
 
 
 if __name__ == "__main__":

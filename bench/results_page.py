@@ -57,6 +57,9 @@ class Table:
     text: str = ""
     methods: list[str] = field(default_factory=list)
     titles: dict[str, str] = field(default_factory=dict)
+    posture: str = ""
+    """A task feature whose mean over the final evaluation episodes each run's ``posture.json`` holds
+    (``bench/posture.py --write``): a column of where the policies are at the end."""
 
 
 class SpecError(ValueError):
@@ -84,7 +87,7 @@ def load_spec(path: Path) -> tuple[dict[str, Any], list[Table]]:
         tables.append(Table(raw["id"], raw["title"], raw["question"].strip(), list(budgets), sources,
                             raw["command"].strip(), raw.get("paper_ref", ""), dict(raw.get("paper", {})),
                             raw.get("text", "").strip(), list(raw.get("methods", [])),
-                            dict(raw.get("titles", {}))))
+                            dict(raw.get("titles", {})), raw.get("posture", "")))
     return {k: v for k, v in data.items() if k != "table"}, tables
 
 
@@ -156,6 +159,21 @@ def spread(values: Sequence[float]) -> str:
     return spread_text(list(values), point, low, high)
 
 
+def posture_cell(row: Row, feature: str) -> str:
+    """The feature's mean over each run's final evaluation episodes (``posture.json``), over seeds."""
+    values = []
+    for run in row.runs:
+        saved = read_json(run.path / "posture.json") or {}
+        value = saved.get("features", {}).get(feature, {}).get("mean")
+        if isinstance(value, int | float):
+            values.append(float(value))
+    if not values:
+        return "not recorded"
+    text = (f"{values[0]:.2f}" if len(values) == 1 else
+            f"mean {sum(values) / len(values):.2f} [{min(values):.2f}, {max(values):.2f}]")
+    return text if len(values) == len(row.runs) else f"{text} ({len(values)} of {len(row.runs)} seeds)"
+
+
 def efficiency(rows: list[Row], row: Row, budget: int) -> str:
     oracle = [final_return(r, budget) for o in rows if o.method == "dense" and o.program == row.program
               for r in o.runs]
@@ -200,6 +218,8 @@ def render_table(table: Table, rows: list[Row]) -> str:
         return md_table(["Initial program", *[title_of(table, m) for m in methods]], body)
     header = ["Method", "seeds", *[f"final return, {_k(b)}" for b in table.budgets],
               f"steps to 50% of dense ({_k(last)})"]
+    if table.posture:
+        header.append(f"{table.posture} at {_k(last)} (final evaluation episodes)")
     if table.paper:
         header.append(f"paper ({table.paper_ref})" if table.paper_ref else "paper")
     body = []
@@ -207,6 +227,8 @@ def render_table(table: Table, rows: list[Row]) -> str:
         cells = [title_of(table, r.method), ", ".join(str(x.seed) for x in r.runs)]
         cells += [spread([final_return(x, b) for x in r.runs]) for b in table.budgets]
         cells.append(efficiency(rows, r, last))
+        if table.posture:
+            cells.append(posture_cell(r, table.posture))
         if table.paper:
             paper = table.paper.get(r.method, "")
             cells.append(f"{paper:,}" if isinstance(paper, int | float) else str(paper))

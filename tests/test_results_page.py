@@ -85,3 +85,22 @@ def test_a_malformed_spec_names_the_table_and_key(tmp_path: Path, load_bench: Ca
     spec.write_text('[[table]]\nid = "hc"\ntitle = "t"\nquestion = "q"\nbudgets = [100]\nruns = []\n')
     with pytest.raises(page.SpecError, match="table 'hc': missing key 'command'"):
         page.load_spec(spec)
+
+
+def test_the_posture_column_reads_each_run_record_and_says_which_lack_one(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    runs = tmp_path / "runs"
+    _run(runs, "dense", 0, (1.0, 2.0))
+    _run(runs, "dense", 1, (1.0, 2.0))
+    (runs / "dense" / "seed0" / "posture.json").write_text(json.dumps(
+        {"features": {"torso_height": {"mean": 0.41, "p10": 0.4, "p90": 0.42}}}))
+    spec = _spec(tmp_path, runs)
+    spec.write_text(spec.read_text().replace("budgets = [10000, 20000]",
+                                             'budgets = [10000, 20000]\nposture = "torso_height"'))
+    meta, tables = page.load_spec(spec)
+
+    text = page.render(meta, tables, figures=None)
+
+    assert "torso_height at 20k (final evaluation episodes)" in text
+    assert "| 0.41 (1 of 2 seeds) |" in text
