@@ -190,3 +190,17 @@ def test_a_division_by_a_margin_that_reaches_zero_where_the_task_ends_is_refused
     assert sandbox_check(_hopper_program("def r_x(s):\n    return np.log(1.0 + np.abs(s.x_velocity))\n"), card).ok
     logged = sandbox_check(_hopper_program("def r_x(s):\n    return np.log(s.x_velocity + 1.0)\n"), card)
     assert any(v.rule in ("singular", "unguarded") and "np.log of" in v.message for v in logged.violations)
+
+
+def test_a_potential_flat_outside_its_band_is_a_shape_factor_not_a_saturated_feature() -> None:
+    """The same clipped code is refused as a PHI feature (the head would fit a flat column) and admitted,
+    with a warning, as a SHAPE potential, which is meant to ramp at one band and stay flat elsewhere."""
+    code = "def ramp(s):\n    return np.clip(s.x_velocity, -0.05, 0.05)\n"
+    card = load_task("halfcheetah")
+    program = program_of("halfcheetah", ramp=code)
+    as_phi = sandbox_check(program, card).factors["ramp"]
+    shape = Factor("ramp", "SHAPE", code, doc="a ramp", units="1", range_hint="[-0.05, 0.05]")
+    as_shape = sandbox_check(program.with_factors([shape]), card).factors["ramp"]
+    assert not as_phi.passed and {r.rule for r in as_phi.reasons} == {"saturation"}
+    assert as_shape.passed and as_shape.figures["saturation_ratio"] > 0.3
+    assert any("flat outside" in w for w in as_shape.warnings)

@@ -12,7 +12,9 @@ the parent computes every figure from the raw outputs:
   attention and the potential unstable);
 * ``saturation``: fraction of outputs piled up at the batch minimum or maximum (within 1e-6 of the
   range, i.e. clipped or hard-saturated; an extreme counts only when it holds at least 1 % of the
-  batch) at most ``max_saturation``;
+  batch) at most ``max_saturation``; for a SHAPE factor only a warning: a potential that ramps up at
+  one band of states is meant to be flat elsewhere, and a fixed potential feeds neither the
+  decomposition head nor the attention that flat features destabilise;
 * ``lipschitz``: the ``lipschitz_quantile`` quantile over states of the gradient norm with respect
   to the observation, estimated by randomized finite differences (Gaussian directions ``u``, so
   ``E[(∇f·u)^2] = |∇f|^2``), at most ``max_lipschitz``; for a SHAPE factor, whose size is its author's
@@ -257,10 +259,11 @@ def _figures_and_reasons(
         fail("kurtosis", f"excess kurtosis {figures['excess_kurtosis']:.1f} > {th.max_excess_kurtosis:g}")
     figures["saturation_ratio"] = _saturation(values)
     if figures["saturation_ratio"] > th.max_saturation:
-        fail(
-            "saturation",
-            f"{figures['saturation_ratio']:.0%} of outputs sit at an extreme (> {th.max_saturation:.0%})",
-        )
+        message = f"{figures['saturation_ratio']:.0%} of outputs sit at an extreme (> {th.max_saturation:.0%})"
+        if kind == "SHAPE":
+            warnings.append(f"{message}: flat outside the states where the potential ramps")
+        else:
+            fail("saturation", message)
     bounds = parse_range_hint(hint)
     if bounds is not None:
         outside = float(np.mean((values < bounds[0]) | (values > bounds[1])))
