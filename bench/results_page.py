@@ -118,7 +118,9 @@ def collect(table: Table) -> tuple[list[Row], list[str]]:
                                                      and run.program not in source["programs"]):
                 continue
             method = rename or run.method
-            key = (method, run.program, run.seed)
+            # A run started from a copy of the task's own program file is tabulated as the task's own.
+            program = source.get("as_program", run.program)
+            key = (method, program, run.seed)
             rel = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
             if key in seen:
                 notes.append(f"`{rel}` repeats {method} seed {run.seed} of `{seen[key]}`: left out")
@@ -129,7 +131,7 @@ def collect(table: Table) -> tuple[list[Row], list[str]]:
             seen[key] = rel
             saved = read_json(path / "config.json") or {}
             env, cfg = saved.get("environment", {}), saved.get("config", {})
-            row = groups.setdefault((method, run.program), Row(method, run.program, [], [], [], []))
+            row = groups.setdefault((method, program), Row(method, program, [], [], [], []))
             row.runs.append(run)
             recorded = env.get("source")
             row.commits.append(f"`{recorded[:7]}`" if recorded else

@@ -104,3 +104,24 @@ def test_the_posture_column_reads_each_run_record_and_says_which_lack_one(
 
     assert "torso_height at 20k (final evaluation episodes)" in text
     assert "| 0.41 (1 of 2 seeds) |" in text
+
+
+def test_a_source_can_rename_its_method_and_count_its_program_file_as_the_task_own(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    _run(tmp_path / "a", "dense", 0, (1.0, 2.0))
+    _run(tmp_path / "b", "mira", 0, (1.0, 3.0))
+    config = tmp_path / "b" / "mira" / "seed0" / "config.json"
+    saved = json.loads(config.read_text())
+    saved["config"]["program"] = "/runs/x/programs/v000.json"
+    config.write_text(json.dumps(saved))
+    spec = _spec(tmp_path, tmp_path / "a")
+    spec.write_text(spec.read_text().replace(
+        f'runs = ["{tmp_path / "a"}"]',
+        f'runs = ["{tmp_path / "a"}", {{ path = "{tmp_path / "b"}", as = "mira-llm", as_program = "" }}]\n'
+        'titles = { mira-llm = "MIRA, LLM replies" }'))
+    meta, tables = page.load_spec(spec)
+
+    text = page.render(meta, tables, figures=None)
+
+    assert "| MIRA, LLM replies | 0 |" in text and "Initial program" not in text
