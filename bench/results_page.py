@@ -21,6 +21,7 @@ that reach it.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import tomllib
 from collections.abc import Sequence
@@ -148,15 +149,22 @@ def collect(table: Table) -> tuple[list[Row], list[str]]:
     return rows, notes
 
 
+def curve_until(run: RunRecord, budget: int) -> tuple[list[int], list[float]]:
+    """The run's evaluation steps and returns at or before ``budget`` (a longer run read at a smaller one)."""
+    rows = [(s, v) for s, v in zip(run.eval_steps, run.eval_returns, strict=True) if s <= budget]
+    return [s for s, _ in rows], [v for _, v in rows]
+
+
 def final_return(run: RunRecord, budget: int) -> float:
     """Mean evaluation return over the final 10% of ``budget``, from the rows at or before it."""
-    rows = [(s, v) for s, v in zip(run.eval_steps, run.eval_returns, strict=True) if s <= budget]
-    return M.asymptotic_performance([s for s, _ in rows], [v for _, v in rows], budget)
+    return M.asymptotic_performance(*curve_until(run, budget), budget)
 
 
 def spread(values: Sequence[float]) -> str:
     if len(values) == 1:
         return fmt_return(values[0])
+    if len(values) < MIN_SEEDS_FOR_CI:  # mean [min, max]: no interval to bootstrap
+        return spread_text(list(values), math.nan, math.nan, math.nan)
     point, low, high = M.stratified_bootstrap_ci([list(values)], reps=20_000, seed=0)
     return spread_text(list(values), point, low, high)
 
@@ -182,12 +190,8 @@ def efficiency(rows: list[Row], row: Row, budget: int) -> str:
     if not oracle:
         return "n/a"
     threshold = M.oracle_threshold(sum(oracle) / len(oracle))
-    reached = []
-    for run in row.runs:
-        rows_b = [(s, v) for s, v in zip(run.eval_steps, run.eval_returns, strict=True) if s <= budget]
-        step = M.sample_efficiency([s for s, _ in rows_b], [v for _, v in rows_b], threshold)
-        if step is not None:
-            reached.append(step)
+    reached = [step for run in row.runs
+               if (step := M.sample_efficiency(*curve_until(run, budget), threshold)) is not None]
     if not reached:
         return "—"
     text = f"{sum(reached) / len(reached) / 1e3:.0f}k"
@@ -256,9 +260,7 @@ def plot(table: Table, rows: list[Row], path: Path) -> None:
     last = table.budgets[-1]
     panels: dict[str, dict[str, list[Curve]]] = {}
     for r in rows:
-        curves = [Curve([s for s in x.eval_steps if s <= last],
-                        [v for s, v in zip(x.eval_steps, x.eval_returns, strict=True) if s <= last])
-                  for x in r.runs]
+        curves = [Curve(*curve_until(x, last)) for x in r.runs]
         panels.setdefault(r.program or r.runs[0].task_title, {})[r.method] = curves
     methods = list(dict.fromkeys(r.method for r in rows))
     plot_learning_curves(panels, path, title=table.title, panel_titles={p: p for p in panels},
@@ -326,5 +328,3 @@ def main(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     sys.exit(main())
 
-
-__all__ = ["MIN_SEEDS_FOR_CI", "main", "render"]
