@@ -19,6 +19,7 @@ from conftest import _load_bench
 from mira.engineer.backends import make_backend
 from mira.engineer.offline_srr import propose
 from mira.engineer.srr_prompt import Evidence, build_srr_request
+from mira.explain import explain
 from mira.factors import example_program
 from mira.factors.program import Factor, FactorProgram
 from mira.factors.sandbox import collect_states
@@ -53,6 +54,30 @@ def test_the_detector_fires_on_a_stall_and_not_while_the_return_rises() -> None:
     # Flat returns with states spread over the visited range: no band to escape from, no report.
     spread = np.linspace(*VISITED, 200)
     assert _feed(PlateauDetector("torso_height"), stalled, spread) == []
+
+
+def test_a_dip_after_the_warm_up_is_not_a_plateau_until_the_return_is_back_at_its_best() -> None:
+    # High early returns (an untrained sitter), a dip after the warm-up, flat in the dip, then a recovery
+    # to the early level that stays flat: only the flat top is a plateau.
+    rng = np.random.default_rng(2)
+    early = 120_000 + rng.normal(0, 500, WARMUP_CYCLES // 2)
+    dip = 80_000 + rng.normal(0, 500, WARMUP_CYCLES // 2 + 3 * WINDOW)
+    top = 125_000 + rng.normal(0, 500, 3 * WINDOW)
+    returns = np.concatenate([early, dip, top])
+    fired = _feed(PlateauDetector("torso_height"), returns)
+    assert fired and min(fired) >= len(early) + len(dip)
+    # The same dip with no better past is a plateau of its own.
+    assert _feed(PlateauDetector("torso_height"), np.concatenate([dip, top]))[0] < len(dip)
+
+
+def test_a_detector_restored_from_a_checkpoint_without_the_best_window_recovers_it() -> None:
+    detector = PlateauDetector("torso_height")
+    _feed(detector, np.linspace(100_000, 120_000, 2 * WINDOW + 5))
+    state = detector.state_dict()
+    old = {k: v for k, v in state.items() if k != "best"}
+    restored = PlateauDetector("torso_height")
+    restored.load_state_dict(old)
+    assert restored.best == pytest.approx(state["best"])
 
 
 def test_a_report_carries_the_band_and_the_paper_signature() -> None:
@@ -260,6 +285,13 @@ def test_an_escape_is_installed_rolled_back_and_resumed_bit_for_bit(tmp_path: Pa
     assert _cli(reference) == 0
     events = [r["event"] for r in read_csv(reference / "plateau.csv")]
     assert events[:3] == ["plateau", "escape_rolled_back", "plateau"]
+    # A plateau whose escape could not be judged before the last step is left unanswered, and said so.
+    rows = read_csv(reference / "plateau.csv")
+    assert events[-2:] == ["plateau", "too_late"] and rows[-1]["step"] == rows[-2]["step"]
+    assert int(rows[-1]["step"]) + 3 * 200 > 2400 and int(rows[2]["step"]) + 3 * 200 <= 2400
+    assert max(int(p.stem[1:]) for p in (reference / "programs").glob("v*.json")) == int(rows[-1]["version"])
+    story = explain(reference)
+    assert f"Plateau at step {rows[0]['step']}" in story and f"No escape at step {rows[-1]['step']}" in story
     programs = {p.stem: json.loads(p.read_text()) for p in (reference / "programs").glob("v*.json")}
     assert [f["type"] for f in programs["v001"]["factors"]][-1] == "SHAPE"
     assert programs["v002"]["factors"] == programs["v000"]["factors"]  # the escape removed, the rest kept

@@ -88,6 +88,9 @@ def _plateau_lines(run: Path) -> list[str]:
     rows = read_csv(run / "plateau.csv")
     lines = []
     for r in rows:
+        if r["event"] == "too_late":
+            lines.append(f"No escape at step {r['step']}: its probation would have outlasted the run.")
+            continue
         rise = 100 * float(r["rise"])
         if r["event"] == "plateau":
             lines.append(f"Plateau at step {r['step']}: held-out return {float(r['median']):.6g} against "

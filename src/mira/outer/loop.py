@@ -47,11 +47,11 @@ from mira.loop.rollout import discounted_return_to_go
 from mira.mcm.band import stagnation_band
 from mira.mcm.monitor import MetacognitiveMonitor
 from mira.mcm.plateau import MIN_RISE, Plateau, PlateauDetector, late_states
-from mira.mcm.records import METRIC_NAMES, CycleSnapshot, MCMResult, row_fields
+from mira.mcm.records import CycleSnapshot, MCMResult
 from mira.outer.config import OuterLoopConfig
+from mira.outer.records import CycleRecords
 from mira.outer.repair import StructuralCheck
 from mira.runio.atomic import atomic_write_json, atomic_write_text
-from mira.runio.csvlog import CsvLog
 from mira.runio.failpoints import failpoint
 from mira.shaping.attribution import ReturnAttribution
 from mira.shaping.factors import ProgramFactorSource
@@ -69,9 +69,6 @@ HOLDOUT_MAX_STATES = 1000
 PERIODIC_CYCLES = 10
 """no-mcm: call SRR every this many cycles, about as often as MIRA's triggers can come (each starts a cooldown
 of ``K_cool`` = 10 cycles)."""
-PLATEAU_FIELDS = ("step", "event", "version", "feature", "center", "halfwidth", "median", "before", "rise")
-"""``plateau.csv``: each plateau found (the band and the held-out return's windowed medians) and each escape's
-end of probation (``escape_kept`` or ``escape_rolled_back``, with the median since it was installed)."""
 PERIODIC_MAX = 5
 """no-mcm: at most this many periodic interventions (match MIRA's median trigger count)."""
 
@@ -89,13 +86,16 @@ class MiraOuterLoop:
         *,
         gamma: float,
         ablation: str = "full",
+        budget: int | None = None,
     ) -> None:
         """``gamma`` is the agent's discount (d_RPE's target must use the trainer's γ); ``ablation`` one of
-        :data:`ABLATIONS`, from the method name."""
+        :data:`ABLATIONS`, from the method name; ``budget`` the run's total steps (None: unbounded), so that
+        no escape is installed that its probation could not judge before the run ends."""
         if ablation not in ABLATIONS:
             raise ValueError(f"unknown outer-loop ablation {ablation!r}")
         self.config = config
         self.ablation = ablation
+        self.budget = budget
         if config.mcm.delta_t is None:
             raise ValueError("the outer loop needs its cycle length: resolve mcm.delta_t (None = one episode) first")
         self.interval: int = config.mcm.delta_t
@@ -116,8 +116,7 @@ class MiraOuterLoop:
         self.escape: dict[str, Any] | None = None
         """The escape on probation: its factors, the plateau's median return, the cycle it is judged at and the
         held-out returns since it was installed."""
-        self._diagnostics: CsvLog | None = None
-        self._plateau_log: CsvLog | None = None
+        self._records: CycleRecords | None = None
 
     # ------------------------------------------------------------------------------------------- cycle
     def on_cycle(self, ctx: CycleContext) -> dict[str, float]:
@@ -166,6 +165,11 @@ class MiraOuterLoop:
                      "them out of sample with R² %.3f instead of %.3f (%d cycles in a row)", ctx.step, shape,
                      best.r2, attribution.program_r2, self.structural.streak)
         escaping = plateau is not None and self.ablation == "full" and self.escape is None
+        if escaping and not self._judgeable(ctx.step):
+            escaping = False
+            log.info("step %d: no escape: its probation (%d cycles) would end after the run's last step %d",
+                     ctx.step, self.config.mcm.k_cool, self.budget)
+            self._record(ctx, "too_late")
         wants_srr = False
         if self.ablation == "full":
             wants_srr = result.trigger or structural or escaping
@@ -190,6 +194,11 @@ class MiraOuterLoop:
         if decision is not None:
             out["accepted"] = float(decision.accepted)
         return out
+
+    def _judgeable(self, step: int) -> bool:
+        """Whether an escape installed at ``step`` is judged before the run ends: one left on probation at the
+        end would be in the final figures unjudged, with its cost and none of the back-off."""
+        return self.budget is None or step + self.config.mcm.k_cool * self.interval <= self.budget
 
     def _watch_plateau(self, ctx: CycleContext, rollout: Any, recent: float, result: MCMResult) -> Plateau | None:
         """Feed the plateau detector this cycle's held-out episodes; judge an escape on probation."""
@@ -245,11 +254,13 @@ class MiraOuterLoop:
         self._record(ctx, "escape_rolled_back", median=after, before=escape["plateau_median"], rise=rise)
 
     def _record(self, ctx: CycleContext, event: str, **row: Any) -> None:
-        """One line of ``plateau.csv``: a plateau found, or an escape's probation ended (kept or rolled back)."""
-        if self._plateau_log is None:
-            self._plateau_log = CsvLog(ctx.run.path / "plateau.csv", PLATEAU_FIELDS)
-            self._plateau_log.rewind(ctx.step - 1)
-        self._plateau_log.append({"step": ctx.step, "event": event, "version": self.program.version, **row})
+        """One line of ``plateau.csv`` (:class:`CycleRecords`)."""
+        self._cycle_records(ctx).plateau(ctx.step, event, self.program.version, **row)
+
+    def _cycle_records(self, ctx: CycleContext) -> CycleRecords:
+        if self._records is None:
+            self._records = CycleRecords(ctx.run.path)
+        return self._records
 
     def _reframe(self, ctx: CycleContext, result: MCMResult, rollout: Any, keep: np.ndarray, values: np.ndarray,
                  attention: dict[str, float], recent: float, attribution: ReturnAttribution | None,
@@ -326,21 +337,8 @@ class MiraOuterLoop:
         self.pending_observation = None
 
     def _log(self, ctx: CycleContext, result: MCMResult, attribution: ReturnAttribution | None) -> None:
-        if self._diagnostics is None:
-            fields = [*row_fields(METRIC_NAMES), "version", "returns_cv_r2", "unexplained_gain", "unexplained",
-                      "structural_flaw"]
-            self._diagnostics = CsvLog(ctx.run.path / "diagnostics.csv", fields)
-            self._diagnostics.rewind(ctx.step - 1)
-        best = None if attribution is None else attribution.best
-        self._diagnostics.append({
-            **result.as_row(), "version": self.program.version,
-            "returns_cv_r2": "" if attribution is None else attribution.program_r2,
-            "unexplained_gain": "" if best is None else best.gain,
-            "unexplained": "" if best is None else (best.feature if best.form == "value" else f"-{best.feature}^2"),
-            # Whether the structural check calls the program flawed this cycle: the record of a diagnosis that
-            # an ablation without SRR makes but cannot act on.
-            "structural_flaw": "" if attribution is None else int(self.structural.triggered),
-        })
+        self._cycle_records(ctx).diagnostics(ctx.step, result, self.program.version, attribution,
+                                             self.structural.triggered)
 
     # ------------------------------------------------------------------------------------- checkpoint
     def state_dict(self) -> dict[str, Any]:
