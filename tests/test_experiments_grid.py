@@ -6,6 +6,7 @@ import argparse
 import io
 import json
 import tempfile
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -335,3 +336,14 @@ def test_bad_programs_are_usage_errors(tmp_path: Path, programs: list[str], mess
                   programs=[str(tmp_path / p) for p in programs]).validate()
     with pytest.raises(UsageError, match="--program is set by the sweep grid"):
         SweepGrid(["halfcheetah"], ["mira"], ["sac"], [0], 600, ["--program", "x.json"]).validate()
+
+
+SWEEP_FILES = sorted(p for p in (Path(__file__).parents[1] / "bench").glob("*/*.toml")
+                     if "tasks" in tomllib.loads(p.read_text()))  # the flaw lists beside them are not sweeps
+
+
+@pytest.mark.parametrize("path", SWEEP_FILES, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_every_benchmark_sweep_file_builds_its_grid(path: Path) -> None:
+    # The results page prints these files as its tables' commands: each must build a grid as it stands.
+    grid, _ = build_grid(file=path)
+    assert grid.tasks and grid.methods and grid.seeds
