@@ -126,18 +126,26 @@ def collect(table: Table) -> tuple[list[Row], list[str]]:
             if key in seen:
                 notes.append(f"`{rel}` repeats {method} seed {run.seed} of `{seen[key]}`: left out")
                 continue
-            if run.final_step < max(table.budgets):
+            if run.final_step < min(table.budgets):
                 notes.append(f"`{rel}` stopped at {run.final_step:,} steps: left out")
                 continue
+            if run.final_step < max(table.budgets):
+                reached = [_k(b) for b in table.budgets if b <= run.final_step]
+                notes.append(f"`{rel}` stopped at {run.final_step:,} steps: in the {', '.join(reached)} "
+                             f"column{'s' if len(reached) > 1 else ''} only")
             seen[key] = rel
             saved = read_json(path / "config.json") or {}
             env, cfg = saved.get("environment", {}), saved.get("config", {})
             row = groups.setdefault((method, program), Row(method, program, [], [], [], []))
             row.runs.append(run)
             recorded = env.get("source")
-            row.commits.append(f"`{recorded[:7]}`" if recorded else
-                               f"`{source['commit']}` (bench log: the runs predate recording it)"
-                               if "commit" in source else "not recorded")
+            commit = (f"`{recorded[:7]}`" if recorded else
+                      f"`{source['commit']}` (bench log: the runs predate recording it)"
+                      if "commit" in source else "not recorded")
+            for resumed in saved.get("resumed_elsewhere") or []:  # continued on other code or hardware
+                later = str((resumed.get("environment") or {}).get("source") or "?")
+                commit += f", resumed from {_k(int(resumed.get('step', 0)))} at `{later[:7]}`"
+            row.commits.append(commit)
             row.cpus.append(str(env.get("cpu") or "not recorded"))
             row.settings.append(f"agent lr {cfg.get('agent', {}).get('lr')}, evaluation every "
                                 f"{cfg.get('eval_every'):,} steps on {cfg.get('eval_episodes')} episodes")
@@ -169,10 +177,28 @@ def spread(values: Sequence[float]) -> str:
     return spread_text(list(values), point, low, high)
 
 
-def posture_cell(row: Row, feature: str) -> str:
-    """The feature's mean over each run's final evaluation episodes (``posture.json``), over seeds."""
+def reaching(runs: Sequence[RunRecord], budget: int) -> list[RunRecord]:
+    """The runs that trained for at least ``budget`` steps (a table's smaller budgets take shorter runs)."""
+    return [run for run in runs if run.final_step >= budget]
+
+
+def budget_cell(row: Row, budget: int) -> str:
+    """The final return at ``budget`` over the row's runs that reached it, naming them when not all did."""
+    runs = reaching(row.runs, budget)
+    if not runs:
+        return f"not run to {_k(budget)}"
+    text = spread([final_return(x, budget) for x in runs])
+    return text if len(runs) == len(row.runs) else f"{text} (seeds {', '.join(str(x.seed) for x in runs)})"
+
+
+def posture_cell(row: Row, feature: str, budget: int) -> str:
+    """The feature's mean over each run's final evaluation episodes (``posture.json``), over the seeds
+    that ran to ``budget``."""
     values = []
-    for run in row.runs:
+    runs = reaching(row.runs, budget)
+    if not runs:
+        return f"not run to {_k(budget)}"
+    for run in runs:
         saved = read_json(run.path / "posture.json") or {}
         value = saved.get("features", {}).get(feature, {}).get("mean")
         if isinstance(value, int | float):
@@ -181,21 +207,24 @@ def posture_cell(row: Row, feature: str) -> str:
         return "not recorded"
     text = (f"{values[0]:.2f}" if len(values) == 1 else
             f"mean {sum(values) / len(values):.2f} [{min(values):.2f}, {max(values):.2f}]")
-    return text if len(values) == len(row.runs) else f"{text} ({len(values)} of {len(row.runs)} seeds)"
+    return text if len(values) == len(runs) else f"{text} ({len(values)} of {len(runs)} seeds)"
 
 
 def efficiency(rows: list[Row], row: Row, budget: int) -> str:
     oracle = [final_return(r, budget) for o in rows if o.method == "dense" and o.program == row.program
-              for r in o.runs]
+              for r in reaching(o.runs, budget)]
     if not oracle:
         return "n/a"
     threshold = M.oracle_threshold(sum(oracle) / len(oracle))
-    reached = [step for run in row.runs
+    runs = reaching(row.runs, budget)
+    if not runs:
+        return f"not run to {_k(budget)}"
+    reached = [step for run in runs
                if (step := M.sample_efficiency(*curve_until(run, budget), threshold)) is not None]
     if not reached:
         return "—"
     text = f"{sum(reached) / len(reached) / 1e3:.0f}k"
-    return text if len(reached) == len(row.runs) else f"{text} ({len(reached)}/{len(row.runs)})"
+    return text if len(reached) == len(runs) else f"{text} ({len(reached)}/{len(runs)})"
 
 
 # --------------------------------------------------------------------------------------- writing
@@ -231,10 +260,10 @@ def render_table(table: Table, rows: list[Row]) -> str:
     body = []
     for r in rows:
         cells = [title_of(table, r.method), ", ".join(str(x.seed) for x in r.runs)]
-        cells += [spread([final_return(x, b) for x in r.runs]) for b in table.budgets]
+        cells += [budget_cell(r, b) for b in table.budgets]
         cells.append(efficiency(rows, r, last))
         if table.posture:
-            cells.append(posture_cell(r, table.posture))
+            cells.append(posture_cell(r, table.posture, last))
         if table.paper:
             paper = table.paper.get(r.method, "")
             cells.append(f"{paper:,}" if isinstance(paper, int | float) else str(paper))

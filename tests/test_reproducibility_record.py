@@ -91,3 +91,8 @@ def test_resume_on_another_cpu_warns(tmp_path: Path, fast_train_args: list[str],
         assert main(["train", "--resume", str(run), "--quiet"]) == 0
     warnings = [r.getMessage() for r in caplog.records if "different machine" in r.getMessage()]
     assert len(warnings) == 1 and "cpu: 'AMD EPYC 9R45' -> " in warnings[0]
+    # The run directory keeps the record: from which step it continued elsewhere, and what changed.
+    resumed = json.loads((run / "config.json").read_text())["resumed_elsewhere"]
+    assert len(resumed) == 1 and resumed[0]["step"] == 600 and resumed[0]["drift"][0].startswith("cpu: 'AMD EPYC")
+    assert resumed[0]["environment"]["cpu"] == environment_facts()["cpu"]
+    assert "Resumed from step 600 on another machine, software or source: cpu: 'AMD EPYC 9R45'" in explain(run)

@@ -65,18 +65,40 @@ def test_three_seeds_give_mean_and_extremes_five_an_interval(
     assert "`abc1234`: dense, mira" in text and "Test CPU" in text
 
 
-def test_a_run_short_of_the_budget_is_left_out_and_said(
+def test_a_run_short_of_a_budget_counts_only_where_it_reached_and_is_said(
         tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
     page = load_bench("results_page")
     runs = tmp_path / "runs"
     _run(runs, "dense", 0, (1.0, 2.0))
-    _run(runs, "dense", 1, (1.0, 2.0), steps=10_000)
+    _run(runs, "dense", 1, (3.0, 4.0), steps=10_000)  # ran to the first budget only
+    _run(runs, "mira", 0, (5.0, 6.0), steps=10_000)
+    _run(runs, "mira", 1, (5.0, 6.0), steps=5_000)  # short of every budget
+    (runs / "mira" / "seed1" / "eval.csv").write_text("step,return_mean\n5000,5.0\n")
     meta, tables = page.load_spec(_spec(tmp_path, runs))
 
     text = page.render(meta, tables, figures=None)
 
-    assert "| Dense R (oracle) | 0 |" in text
-    assert "seed1` stopped at 10,000 steps: left out" in text
+    dense = next(line for line in text.splitlines() if line.startswith("| Dense"))
+    mira = next(line for line in text.splitlines() if line.startswith("| MIRA"))
+    # At 10k both dense seeds (mean of 1 and 3); at 20k seed 0 alone, and the cell says so.
+    assert "| 0, 1 | mean 2.00 [1.00, 3.00] | 2.00 (seeds 0) |" in dense
+    assert "| 0 | 5.00 | not run to 20k | not run to 20k |" in mira
+    assert "seed1` stopped at 10,000 steps: in the 10k column only" in text
+    assert "mira/seed1` stopped at 5,000 steps: left out" in text
+
+
+def test_a_run_resumed_on_other_code_names_both_commits(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    runs = tmp_path / "runs"
+    _run(runs, "dense", 0, (1.0, 2.0))
+    config = runs / "dense" / "seed0" / "config.json"
+    saved = json.loads(config.read_text())
+    saved["resumed_elsewhere"] = [{"step": 10_000, "drift": ["source: 'abc1234def' -> '9876543fed'"],
+                                   "environment": {"source": "9876543fed"}}]
+    config.write_text(json.dumps(saved))
+    meta, tables = page.load_spec(_spec(tmp_path, runs))
+    assert "`abc1234`, resumed from 10k at `9876543`: dense" in page.render(meta, tables, figures=None)
 
 
 def test_a_malformed_spec_names_the_table_and_key(tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:

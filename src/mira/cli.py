@@ -156,6 +156,19 @@ def reproducibility_drift(recorded: dict[str, Any], now: dict[str, Any]) -> list
             if key in recorded and recorded[key] != now.get(key)]
 
 
+def record_resume(path: Path, drift: list[str]) -> None:
+    """Record in ``config.json`` (under ``"resumed_elsewhere"``) a resume on another machine, software or
+    source: the step it continued from, what changed and the facts of where it continued, so that the run's
+    figures after that step are not read as the recorded source's."""
+    from mira.runio.checkpoint import list_checkpoints
+    from mira.runio.rundir import RunDir
+
+    saved = json.loads((path / "config.json").read_text(encoding="utf-8"))
+    entry = {"step": max(list_checkpoints(path / "checkpoints"), default=0), "drift": drift,
+             "environment": environment_facts()}
+    RunDir(path).write_config({**saved, "resumed_elsewhere": [*saved.get("resumed_elsewhere", []), entry]})
+
+
 def extend_budget(path: Path, saved: dict[str, Any], cfg: TrainConfig, steps: int) -> TrainConfig:
     """``--resume DIR --steps N``: the run's configuration with the larger budget ``N``, recorded in its
     ``config.json`` (with the budgets it had before, under ``"extended_from"``).
@@ -201,6 +214,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             logging.getLogger(__name__).warning(
                 "--resume %s on a different machine, software or source (%s): the run continues from its checkpoint, "
                 "but not bit for bit as it would have where it started", path, "; ".join(drift))
+            record_resume(path, drift)
     else:
         if args.out is None:
             raise UsageError("train: --out DIR is required (or --resume DIR)")

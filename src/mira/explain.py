@@ -241,6 +241,9 @@ def explain(run_dir: str | Path) -> str:
         commit, _, digest = str(env["source"]).partition("+")
         lines.append(f"Code: mira {env.get('mira', '?')} at commit {commit[:12]}"
                      + (f", with uncommitted changes to src (diff digest {digest})." if digest else "."))
+    for resumed in cfg_file.get("resumed_elsewhere") or []:
+        lines.append(f"Resumed from step {resumed.get('step')} on another machine, software or source: "
+                     + "; ".join(str(d) for d in resumed.get("drift") or []) + ".")
     if evals:
         last = evals[-1]
         best = max(evals, key=lambda r: float(r["return_mean"]))
