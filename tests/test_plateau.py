@@ -23,7 +23,15 @@ from mira.explain import explain
 from mira.factors import example_program
 from mira.factors.program import Factor, FactorProgram
 from mira.factors.sandbox import collect_states
-from mira.mcm.plateau import MIN_RISE, PATIENCE, WARMUP_CYCLES, WINDOW, PlateauDetector, late_states
+from mira.mcm.plateau import (
+    MIN_RISE,
+    PATIENCE,
+    WARMUP_CYCLES,
+    WINDOW,
+    PlateauDetector,
+    first_states,
+    late_states,
+)
 from mira.runio.csvlog import read_csv
 from mira.shaping.factors import ProgramFactorSource
 from mira.shaping.testing import fill_episodes, make_hars
@@ -198,6 +206,31 @@ def test_the_offline_engineer_answers_a_plateau_with_a_bounded_potential_above_t
     height = 20 * 130.0  # ESCAPE_STEPS steps of the plateau's reward per step
     assert psi[1] < 0.3 * height and psi[0] < psi[1] < psi[2] < psi[3] <= height  # a ramp upward from the band
     assert json.loads(new["range_hint"]) == [0, height]
+
+
+def test_the_ramp_spans_half_the_climb_from_where_the_episodes_start() -> None:
+    # A policy that sits still visits a narrow range; the climb from the episodes' start to the band sets
+    # the ramp's scale then (section 5.3.2's escape reaches toward standing, not a few centimetres up).
+    card = load_task("humanoidstandup", check_env=False)
+    evidence = _plateau_evidence()
+    assert evidence.plateau is not None
+    narrow = {**evidence.plateau, "visited": [0.30, 0.42]}
+
+    def ramp(plateau: dict[str, Any]) -> tuple[float, str]:
+        evidence.plateau = plateau
+        request = build_srr_request(card, example_program("humanoidstandup", 0), evidence, [], 3, OPERATORS, 17)
+        (cand,) = propose(request.context)["candidates"]
+        return float(cand["edits"][0]["params"]["ramp_width"]), request.messages[1]["content"]
+
+    width, prompt = ramp(narrow)
+    assert width == pytest.approx(0.25 * 0.12) and "episodes start at" not in prompt
+    width, prompt = ramp({**narrow, "start": 0.1})
+    assert width == pytest.approx(0.5 * (0.4 - 0.1)) and "the episodes start at 0.1" in prompt
+
+
+def test_first_states_are_each_episode_first_value() -> None:
+    episode = np.array([0, 0, 0, 1, 1, 2])
+    assert first_states(np.array([0.1, 0.2, 0.3, 0.12, 0.5, 0.09]), episode).tolist() == [0.1, 0.12, 0.09]
 
 
 def _reframe_escape(tmp_path: Path, reply: dict[str, Any], states: tuple[np.ndarray, np.ndarray]) -> Any:

@@ -160,6 +160,7 @@ def _plateau(raw: Any, features: list[str]) -> dict[str, Any] | None:
     if any(v is None for v in out.values()) or lo is None or hi is None:
         return None
     out["visited"] = (min(lo, hi), max(lo, hi))
+    out["start"] = _opt_float(raw.get("start"))  # None: not reported (evidence from before it was)
     return out
 
 

@@ -65,6 +65,9 @@ ESCAPE_STEPS = 20.0
 about this many steps' reward at once, enough to stand out of the critic's noise, bounded whatever happens."""
 ESCAPE_RAMP_SHARE = 0.25
 """The ramp's width as a share of the range the run has visited (at least twice the band's half-width)."""
+ESCAPE_CLIMB_SHARE = 0.5
+"""...or as a share of the climb from where the episodes start to the band, when that is wider: a policy that
+sits still visits a narrow range, and a ramp of that range's scale ends a few centimetres above the band."""
 
 
 @dataclass
@@ -334,12 +337,14 @@ def add_escape_bonus(ev: RequestContext, why: str) -> tuple[dict, list[dict]] | 
 
 def add_escape_potential(ev: RequestContext) -> tuple[dict, list[dict]] | None:
     """A SHAPE factor Ψ(s) = β · σ((z − c) / w), written with tanh: about 0 in the band where the episodes
-    settle, rising over a ramp of width w centred one w above it (c = center + w), bounded by β."""
+    settle, rising over a ramp of width w centred one w above it (c = center + w), bounded by β; w is the
+    larger of a share of the visited range and a share of the climb from the episodes' start to the band."""
     p = ev.plateau
     if p is None:
         return None
     feature, (lo, hi) = str(p["feature"]), p["visited"]
-    width = max(2.0 * float(p["halfwidth"]), ESCAPE_RAMP_SHARE * (hi - lo), 1e-3)
+    climb = 0.0 if p.get("start") is None else abs(float(p["center"]) - float(p["start"]))
+    width = max(2.0 * float(p["halfwidth"]), ESCAPE_RAMP_SHARE * (hi - lo), ESCAPE_CLIMB_SHARE * climb, 1e-3)
     center, beta = float(p["center"]) + width, ESCAPE_STEPS * max(abs(float(p["reward_per_step"])), 1e-6)
     expr = f"{num(beta / 2.0)} * (1.0 + np.tanh((s.{feature} - {num(center)}) / {num(2.0 * width)}))"
     band = f"{feature} = {num(float(p['center']))} ± {num(float(p['halfwidth']))}"

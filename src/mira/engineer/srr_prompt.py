@@ -230,7 +230,8 @@ def _plateau_lines(ev: Evidence) -> list[str]:
         f"  return median of the last cycles {float(p['recent_median']):.4g} against {float(p['previous_median']):.4g} "
         f"before ({float(p['rise']):+.1%})",
         f"  settled band: {p['feature']} = {float(p['center']):.4g} ± {float(p['halfwidth']):.4g}, where the run has "
-        f"visited [{lo:.4g}, {hi:.4g}]",
+        f"visited [{lo:.4g}, {hi:.4g}]" + ("" if p.get("start") is None else
+                                           f"; the episodes start at {float(p['start']):.4g}"),
         f"  reward per step at the plateau: about {float(p['reward_per_step']):.4g}",
     ]
     if p.get("d_peg") is not None and p.get("d_rpe") is not None:

@@ -59,11 +59,13 @@ class Plateau:
     visited: tuple[float, float]
     peg: float | None
     rpe: float | None
+    start: float | None = None
+    """The feature's median at the first step of the evaluation episodes: where the climb to the band began."""
 
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.step, "recent_median": self.recent_median, "previous_median": self.previous_median,
                 "rise": self.rise, "feature": self.feature, "center": self.center, "halfwidth": self.halfwidth,
-                "visited": list(self.visited), "d_peg": self.peg, "d_rpe": self.rpe}
+                "visited": list(self.visited), "start": self.start, "d_peg": self.peg, "d_rpe": self.rpe}
 
 
 def late_states(values: np.ndarray, episode_index: np.ndarray, share: float = LATE_SHARE) -> np.ndarray:
@@ -74,6 +76,13 @@ def late_states(values: np.ndarray, episode_index: np.ndarray, share: float = LA
         where = np.flatnonzero(episode_index == e)
         keep[where[int(len(where) * (1.0 - share)):]] = True
     return values[keep]
+
+
+def first_states(values: np.ndarray, episode_index: np.ndarray) -> np.ndarray:
+    """The value at each episode's first step (where it starts, before the policy acts)."""
+    values, episode_index = np.asarray(values, dtype=np.float64), np.asarray(episode_index)
+    _, first = np.unique(episode_index, return_index=True)
+    return values[first]
 
 
 class PlateauDetector:
@@ -88,9 +97,10 @@ class PlateauDetector:
         """The best median of ``WINDOW`` consecutive cycles since the history began (None: fewer cycles)."""
 
     def observe(self, step: int, held_out_return: float, settled: np.ndarray, visited: tuple[float, float],
-                peg: float | None = None, rpe: float | None = None) -> Plateau | None:
+                peg: float | None = None, rpe: float | None = None, start: float | None = None) -> Plateau | None:
         """One cycle: its mean held-out return, the band feature's values where the held-out episodes settle
-        (:func:`late_states`), the range of the feature the run has visited, and d_PEG/d_RPE for the record."""
+        (:func:`late_states`), the range of the feature the run has visited, d_PEG/d_RPE for the record and
+        the feature's value where the episodes start (:func:`first_states`)."""
         self.cycles += 1
         self.returns.append(float(held_out_return))
         self.returns = self.returns[-2 * WINDOW:]
@@ -113,7 +123,7 @@ class PlateauDetector:
             return None
         self.reset()
         return Plateau(step, recent, previous, rise, self.feature, center, half,
-                       (float(visited[0]), float(visited[1])), peg, rpe)
+                       (float(visited[0]), float(visited[1])), peg, rpe, start)
 
     def reset(self) -> None:
         """Forget the history: the next report needs a stall of its own (after a report, an edit or a rollback)."""

@@ -46,7 +46,7 @@ from mira.loop.hooks import CycleContext
 from mira.loop.rollout import discounted_return_to_go
 from mira.mcm.band import stagnation_band
 from mira.mcm.monitor import MetacognitiveMonitor
-from mira.mcm.plateau import MIN_RISE, Plateau, PlateauDetector, late_states
+from mira.mcm.plateau import MIN_RISE, Plateau, PlateauDetector, first_states, late_states
 from mira.mcm.records import CycleSnapshot, MCMResult
 from mira.outer.config import OuterLoopConfig
 from mira.outer.records import CycleRecords
@@ -212,7 +212,8 @@ class MiraOuterLoop:
         visited = (float(np.percentile(feature, 1)), float(np.percentile(feature, 99)))
         d = result.evidence()["d"]
         found = self.plateau.observe(ctx.step, recent, late_states(feature, rollout.episode_index), visited,
-                                     d.get("peg"), d.get("rpe"))
+                                     d.get("peg"), d.get("rpe"),
+                                     float(np.median(first_states(feature, rollout.episode_index))))
         if found is not None:
             log.info("step %d: learning has stalled: held-out return %.6g against %.6g before (%+.1f%%), episodes "
                      "settled at %s = %.4g ± %.3g", ctx.step, found.recent_median, found.previous_median,
