@@ -268,6 +268,14 @@ def render_table(table: Table, rows: list[Row]) -> str:
             paper = table.paper.get(r.method, "")
             cells.append(f"{paper:,}" if isinstance(paper, int | float) else str(paper))
         body.append(cells)
+    # The paper's rows that no run here answers yet: listed, so that a gap shows where it is.
+    for method in order_methods(m for m in table.paper if m not in {r.method for r in rows}):
+        cells = [title_of(table, method), "not run yet", *["—" for _ in table.budgets], "—"]
+        if table.posture:
+            cells.append("—")
+        paper = table.paper[method]
+        cells.append(f"{paper:,}" if isinstance(paper, int | float) else str(paper))
+        body.append(cells)
     return md_table(header, body)
 
 
@@ -319,7 +327,7 @@ def render(meta: dict[str, Any], tables: list[Table], *, figures: Path | None, s
             out += [f"![{table.title}]({FIGURES}/{table.id}.png)", ""]
         if table.text:
             out += [table.text, ""]
-        out += [f"Made by: `{table.command}`", "", provenance(rows), ""]
+        out += [f"Made by: `{table.command}`", "", provenance(rows) if rows else "No runs archived yet.", ""]
         if notes:
             out += [*[f"- {n}" for n in notes], ""]
     for key in ("decisions", "speed"):

@@ -147,3 +147,18 @@ def test_a_source_can_rename_its_method_and_count_its_program_file_as_the_task_o
     text = page.render(meta, tables, figures=None)
 
     assert "| MIRA, LLM replies | 0 |" in text and "Initial program" not in text
+
+
+def test_the_paper_rows_no_run_answers_are_listed_as_not_run(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    runs = tmp_path / "runs"
+    _run(runs, "dense", 0, (1.0, 2.0))
+    spec = _spec(tmp_path, runs)
+    spec.write_text(spec.read_text().replace("paper = { dense = 100, mira = 120 }",
+                                             "paper = { dense = 100, mira = 120, lare = 90 }"))
+    meta, tables = page.load_spec(spec)
+    lines = page.render(meta, tables, figures=None).splitlines()
+    mira, lare = "| MIRA | not run yet | — | — | — | 120 |", "| LaRe | not run yet | — | — | — | 90 |"
+    assert mira in lines and lare in lines
+    assert next(i for i, x in enumerate(lines) if x.startswith("| Dense")) < lines.index(mira)
