@@ -358,7 +358,8 @@ def main(argv: list[str] | None = None) -> int:
     figures.mkdir(parents=True, exist_ok=True)
     text = render(meta, tables, figures=figures, speed=speed)
     args.page.write_text(text, encoding="utf-8")
-    print(f"wrote {args.page} ({len(text.splitlines())} lines) and {len(tables)} figures in {figures}")
+    drawn = sum(1 for table in tables if (figures / f"{table.id}.png").exists())
+    print(f"wrote {args.page} ({len(text.splitlines())} lines) and {drawn} figures in {figures}")
     return 0
 
 
