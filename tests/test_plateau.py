@@ -64,28 +64,14 @@ def test_the_detector_fires_on_a_stall_and_not_while_the_return_rises() -> None:
     assert _feed(PlateauDetector("torso_height"), stalled, spread) == []
 
 
-def test_a_dip_after_the_warm_up_is_not_a_plateau_until_the_return_is_back_at_its_best() -> None:
-    # High early returns (an untrained sitter), a dip after the warm-up, flat in the dip, then a recovery
-    # to the early level that stays flat: only the flat top is a plateau.
+def test_a_flat_dip_after_the_warm_up_is_a_plateau_too() -> None:
+    # High early returns (an untrained sitter), then a dip that stays flat: reported in the dip, where an
+    # escape can still shape the recovery, not only once the run is back at its best.
     rng = np.random.default_rng(2)
     early = 120_000 + rng.normal(0, 500, WARMUP_CYCLES // 2)
     dip = 80_000 + rng.normal(0, 500, WARMUP_CYCLES // 2 + 3 * WINDOW)
-    top = 125_000 + rng.normal(0, 500, 3 * WINDOW)
-    returns = np.concatenate([early, dip, top])
-    fired = _feed(PlateauDetector("torso_height"), returns)
-    assert fired and min(fired) >= len(early) + len(dip)
-    # The same dip with no better past is a plateau of its own.
-    assert _feed(PlateauDetector("torso_height"), np.concatenate([dip, top]))[0] < len(dip)
-
-
-def test_a_detector_restored_from_a_checkpoint_without_the_best_window_recovers_it() -> None:
-    detector = PlateauDetector("torso_height")
-    _feed(detector, np.linspace(100_000, 120_000, 2 * WINDOW + 5))
-    state = detector.state_dict()
-    old = {k: v for k, v in state.items() if k != "best"}
-    restored = PlateauDetector("torso_height")
-    restored.load_state_dict(old)
-    assert restored.best == pytest.approx(state["best"])
+    fired = _feed(PlateauDetector("torso_height"), np.concatenate([early, dip]))
+    assert fired and len(early) <= fired[0] < len(early) + len(dip)
 
 
 def test_a_report_carries_the_band_and_the_paper_signature() -> None:
