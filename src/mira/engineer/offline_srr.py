@@ -15,10 +15,9 @@ Appendix A JSON, ranked by how strongly the evidence supports each rule:
 * near-zero FAP (ossified attention) → Gate the dominant factor on a state predicate, or Prune it;
 * large TPD oscillation without gains → Sat (clip) the fastest-varying term.
 
-Without diagnostics (``guided`` false: the w/o-MCM ablation) it can only propose generic edits from
-the program itself (Sat or Scale of the largest-range factor). Each candidate's
-``updated_factors`` is the complete revised factor set. Code is written only with ``s.<feature>``,
-arithmetic and ``np.tanh/exp/clip/square/cos/ones_like``. Everything is deterministic.
+Without diagnostics (``guided`` false: the w/o-MCM ablation) it can only propose generic edits from the
+program itself (Sat or Scale of the largest-range factor). Each candidate's ``updated_factors`` is the complete
+revised factor set, its code only ``s.<feature>``, arithmetic and ``np.tanh/exp/clip/...``; all deterministic.
 """
 
 from __future__ import annotations
@@ -63,11 +62,9 @@ SCALE_BACKOFF = 0.5
 ESCAPE_STEPS = 20.0
 """The escape potential's height in steps of the plateau's reward per step: climbing out of the band pays
 about this many steps' reward at once, enough to stand out of the critic's noise, bounded whatever happens."""
-ESCAPE_RAMP_SHARE = 0.25
-"""The ramp's width as a share of the range the run has visited (at least twice the band's half-width)."""
-ESCAPE_CLIMB_SHARE = 0.5
-"""...or as a share of the climb from where the episodes start to the band, when that is wider: a policy that
-sits still visits a narrow range, and a ramp of that range's scale ends a few centimetres above the band."""
+ESCAPE_RAMP_SHARE, ESCAPE_CLIMB_SHARE = 0.25, 0.5
+"""The ramp's width: the largest of twice the band's half-width, RAMP_SHARE of the range the run visits and
+CLIMB_SHARE of the climb from the episodes' start to the band (a policy sitting still visits a narrow range)."""
 
 
 @dataclass
@@ -336,11 +333,9 @@ def add_escape_bonus(ev: RequestContext, why: str) -> tuple[dict, list[dict]] | 
 
 
 def add_escape_potential(ev: RequestContext) -> tuple[dict, list[dict]] | None:
-    """A SHAPE factor Ψ(s) = β · σ((z − c) / w), written with tanh: about 0 in the band where the episodes
-    settle, rising over a ramp of width w centred one w above it (c = center + w), bounded by β; w is the
-    larger of a share of the visited range and a share of the climb from the episodes' start to the band."""
-    p = ev.plateau
-    if p is None:
+    """A SHAPE factor Ψ(s) = β · σ((z − c) / w), written with tanh: about 0 in the band where the episodes settle,
+    rising over a ramp of width w (:data:`ESCAPE_RAMP_SHARE`) centred one w above it (c = center + w), bounded by β."""
+    if (p := ev.plateau) is None:
         return None
     feature, (lo, hi) = str(p["feature"]), p["visited"]
     climb = 0.0 if p.get("start") is None else abs(float(p["center"]) - float(p["start"]))

@@ -116,7 +116,7 @@ class MiraOuterLoop:
         self.escape: dict[str, Any] | None = None
         """The escape on probation: its factors, the plateau's median return, the cycle it is judged at and the
         held-out returns since it was installed."""
-        self._records: CycleRecords | None = None
+        self._records = CycleRecords()
 
     # ------------------------------------------------------------------------------------------- cycle
     def on_cycle(self, ctx: CycleContext) -> dict[str, float]:
@@ -256,12 +256,7 @@ class MiraOuterLoop:
 
     def _record(self, ctx: CycleContext, event: str, **row: Any) -> None:
         """One line of ``plateau.csv`` (:class:`CycleRecords`)."""
-        self._cycle_records(ctx).plateau(ctx.step, event, self.program.version, **row)
-
-    def _cycle_records(self, ctx: CycleContext) -> CycleRecords:
-        if self._records is None:
-            self._records = CycleRecords(ctx.run.path)
-        return self._records
+        self._records.plateau(ctx.run.path, ctx.step, event, self.program.version, **row)
 
     def _reframe(self, ctx: CycleContext, result: MCMResult, rollout: Any, keep: np.ndarray, values: np.ndarray,
                  attention: dict[str, float], recent: float, attribution: ReturnAttribution | None,
@@ -338,8 +333,8 @@ class MiraOuterLoop:
         self.pending_observation = None
 
     def _log(self, ctx: CycleContext, result: MCMResult, attribution: ReturnAttribution | None) -> None:
-        self._cycle_records(ctx).diagnostics(ctx.step, result, self.program.version, attribution,
-                                             self.structural.triggered)
+        self._records.diagnostics(ctx.run.path, ctx.step, result, self.program.version, attribution,
+                                  self.structural.triggered)
 
     # ------------------------------------------------------------------------------------- checkpoint
     def state_dict(self) -> dict[str, Any]:

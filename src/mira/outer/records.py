@@ -25,15 +25,14 @@ DIAGNOSTIC_EXTRA = ("version", "returns_cv_r2", "unexplained_gain", "unexplained
 class CycleRecords:
     """Appends one row per cycle to ``diagnostics.csv`` and one per plateau event to ``plateau.csv``."""
 
-    def __init__(self, run_path: Path) -> None:
-        self.run_path = run_path
+    def __init__(self) -> None:
         self._diagnostics: CsvLog | None = None
         self._plateau: CsvLog | None = None
 
-    def diagnostics(self, step: int, result: MCMResult, version: int, attribution: ReturnAttribution | None,
-                    structural_flaw: bool) -> None:
+    def diagnostics(self, run_path: Path, step: int, result: MCMResult, version: int,
+                    attribution: ReturnAttribution | None, structural_flaw: bool) -> None:
         if self._diagnostics is None:
-            self._diagnostics = CsvLog(self.run_path / "diagnostics.csv", [*row_fields(METRIC_NAMES),
+            self._diagnostics = CsvLog(run_path / "diagnostics.csv", [*row_fields(METRIC_NAMES),
                                                                            *DIAGNOSTIC_EXTRA])
             self._diagnostics.rewind(step - 1)
         best = None if attribution is None else attribution.best
@@ -47,9 +46,9 @@ class CycleRecords:
             "structural_flaw": "" if attribution is None else int(structural_flaw),
         })
 
-    def plateau(self, step: int, event: str, version: int, **row: Any) -> None:
+    def plateau(self, run_path: Path, step: int, event: str, version: int, **row: Any) -> None:
         """One line of ``plateau.csv``: a plateau found, an escape's probation ended, or a plateau too late."""
         if self._plateau is None:
-            self._plateau = CsvLog(self.run_path / "plateau.csv", PLATEAU_FIELDS)
+            self._plateau = CsvLog(run_path / "plateau.csv", PLATEAU_FIELDS)
             self._plateau.rewind(step - 1)
         self._plateau.append({"step": step, "event": event, "version": version, **row})
