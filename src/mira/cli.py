@@ -156,7 +156,7 @@ def reproducibility_drift(recorded: dict[str, Any], now: dict[str, Any]) -> list
             if key in recorded and recorded[key] != now.get(key)]
 
 
-def record_resume(path: Path, drift: list[str]) -> None:
+def record_resume(path: Path, drift: list[str], facts: dict[str, Any]) -> None:
     """Record in ``config.json`` (under ``"resumed_elsewhere"``) a resume on another machine, software or
     source: the step it continued from, what changed and the facts of where it continued, so that the run's
     figures after that step are not read as the recorded source's."""
@@ -165,7 +165,7 @@ def record_resume(path: Path, drift: list[str]) -> None:
 
     saved = json.loads((path / "config.json").read_text(encoding="utf-8"))
     entry = {"step": max(list_checkpoints(path / "checkpoints"), default=0), "drift": drift,
-             "environment": environment_facts()}
+             "environment": facts}
     RunDir(path).write_config({**saved, "resumed_elsewhere": [*saved.get("resumed_elsewhere", []), entry]})
 
 
@@ -209,12 +209,13 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.steps is not None and args.steps != cfg.steps:
             cfg = extend_budget(path, saved, cfg, args.steps)
         card = load_task(cfg.task)
-        drift = reproducibility_drift(saved.get("environment") or {}, environment_facts())
+        facts = environment_facts()
+        drift = reproducibility_drift(saved.get("environment") or {}, facts)
         if drift:
             logging.getLogger(__name__).warning(
                 "--resume %s on a different machine, software or source (%s): the run continues from its checkpoint, "
                 "but not bit for bit as it would have where it started", path, "; ".join(drift))
-            record_resume(path, drift)
+            record_resume(path, drift, facts)
     else:
         if args.out is None:
             raise UsageError("train: --out DIR is required (or --resume DIR)")

@@ -130,4 +130,3 @@ class PlateauDetector:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.returns = [float(x) for x in state["returns"]]
         self.flat, self.cycles = int(state["flat"]), int(state["cycles"])
-

@@ -31,8 +31,7 @@ def build_mira(config: TrainConfig, card: TaskCard, run_dir: Path, method: str) 
     if outer_config.mcm.delta_t is None:  # one cycle per episode (see MCMConfig.delta_t)
         outer_config.mcm = replace(outer_config.mcm, delta_t=int(config.max_episode_steps or card.eval_horizon))
     outer = MiraOuterLoop(outer_config, card, reward, backend, program, action_dim(card), config.llm.followups,
-                          gamma=config.agent.gamma, ablation=mode,
-                          budget=config.steps)
+                          gamma=config.agent.gamma, ablation=mode, budget=config.steps)
     what = {"full": "MCM triggers SRR", "no-mcm": "periodic unguided SRR (no MCM)", "no-srr": "MCM only (no SRR)"}
     description = f"MIRA ({what[mode]}) over HARS: {describe_shaping(reward)}"
     return MethodParts(reward, [outer], description)

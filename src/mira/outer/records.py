@@ -32,8 +32,8 @@ class CycleRecords:
     def diagnostics(self, run_path: Path, step: int, result: MCMResult, version: int,
                     attribution: ReturnAttribution | None, structural_flaw: bool) -> None:
         if self._diagnostics is None:
-            self._diagnostics = CsvLog(run_path / "diagnostics.csv", [*row_fields(METRIC_NAMES),
-                                                                           *DIAGNOSTIC_EXTRA])
+            fields = [*row_fields(METRIC_NAMES), *DIAGNOSTIC_EXTRA]
+            self._diagnostics = CsvLog(run_path / "diagnostics.csv", fields)
             self._diagnostics.rewind(step - 1)
         best = None if attribution is None else attribution.best
         self._diagnostics.append({
