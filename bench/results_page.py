@@ -61,6 +61,9 @@ class Table:
     posture: str = ""
     """A task feature whose mean over the final evaluation episodes each run's ``posture.json`` holds
     (``bench/posture.py --write``): a column of where the policies are at the end."""
+    escapes: bool = False
+    """A column of the monitor's escape edits per seed: how many it installed by the last budget and how
+    many of those its probation kept (the interventions' ``evidence.json`` and ``probation.json``)."""
 
 
 class SpecError(ValueError):
@@ -88,7 +91,7 @@ def load_spec(path: Path) -> tuple[dict[str, Any], list[Table]]:
         tables.append(Table(raw["id"], raw["title"], raw["question"].strip(), list(budgets), sources,
                             raw["command"].strip(), raw.get("paper_ref", ""), dict(raw.get("paper", {})),
                             raw.get("text", "").strip(), list(raw.get("methods", [])),
-                            dict(raw.get("titles", {})), raw.get("posture", "")))
+                            dict(raw.get("titles", {})), raw.get("posture", ""), bool(raw.get("escapes", False))))
     return {k: v for k, v in data.items() if k != "table"}, tables
 
 
@@ -210,6 +213,35 @@ def posture_cell(row: Row, feature: str, budget: int) -> str:
     return text if len(values) == len(runs) else f"{text} ({len(values)} of {len(runs)} seeds)"
 
 
+def escapes_cell(row: Row, budget: int) -> str:
+    """Per seed (in the seeds column's order), the escapes the monitor's plateau detector installed up to
+    ``budget`` and how many of them their probation kept: "kept/installed"; "—" for a run without an
+    outer loop (once for a row of such runs). An escape still on probation at ``budget`` counts as
+    installed, not kept."""
+    runs = reaching(row.runs, budget)
+    if not runs:
+        return f"not run to {_k(budget)}"
+    cells = []
+    for run in runs:
+        folder = run.path / "interventions"
+        if not folder.is_dir():
+            cells.append("—")
+            continue
+        installed = kept = 0
+        for edit in sorted(folder.iterdir()):
+            evidence = read_json(edit / "evidence.json") or {}
+            decision = read_json(edit / "decision.json") or {}
+            if evidence.get("cause") != "plateau" or not decision.get("accepted"):
+                continue
+            if int(evidence.get("step", 0)) > budget:
+                continue
+            installed += 1
+            verdict = read_json(edit / "probation.json") or {}
+            kept += bool(verdict.get("kept")) and int(verdict.get("step", 0)) <= budget
+        cells.append(f"{kept}/{installed}")
+    return "—" if set(cells) == {"—"} else ", ".join(cells)
+
+
 def efficiency(rows: list[Row], row: Row, budget: int) -> str:
     oracle = [final_return(r, budget) for o in rows if o.method == "dense" and o.program == row.program
               for r in reaching(o.runs, budget)]
@@ -255,6 +287,8 @@ def render_table(table: Table, rows: list[Row]) -> str:
               f"steps to 50% of dense ({_k(last)})"]
     if table.posture:
         header.append(f"{table.posture} at {_k(last)} (final evaluation episodes)")
+    if table.escapes:
+        header.append(f"escapes kept/installed by {_k(last)}, per seed")
     if table.paper:
         header.append(f"paper ({table.paper_ref})" if table.paper_ref else "paper")
     body = []
@@ -264,6 +298,8 @@ def render_table(table: Table, rows: list[Row]) -> str:
         cells.append(efficiency(rows, r, last))
         if table.posture:
             cells.append(posture_cell(r, table.posture, last))
+        if table.escapes:
+            cells.append(escapes_cell(r, last))
         if table.paper:
             paper = table.paper.get(r.method, "")
             cells.append(f"{paper:,}" if isinstance(paper, int | float) else str(paper))
@@ -272,6 +308,8 @@ def render_table(table: Table, rows: list[Row]) -> str:
     for method in order_methods(m for m in table.paper if m not in {r.method for r in rows}):
         cells = [title_of(table, method), "not run yet", *["—" for _ in table.budgets], "—"]
         if table.posture:
+            cells.append("—")
+        if table.escapes:
             cells.append("—")
         paper = table.paper[method]
         cells.append(f"{paper:,}" if isinstance(paper, int | float) else str(paper))

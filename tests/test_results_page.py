@@ -128,6 +128,43 @@ def test_the_posture_column_reads_each_run_record_and_says_which_lack_one(
     assert "| 0.41 (1 of 2 seeds) |" in text
 
 
+def _edit(run: Path, name: str, cause: str, step: int, accepted: bool, kept: bool | None = None) -> None:
+    folder = run / "interventions" / name
+    folder.mkdir(parents=True)
+    (folder / "evidence.json").write_text(json.dumps({"step": step, "cause": cause}))
+    (folder / "decision.json").write_text(json.dumps({"accepted": accepted}))
+    if kept is not None:
+        (folder / "probation.json").write_text(json.dumps({"step": step + 5000, "kept": kept}))
+
+
+def test_the_escapes_column_counts_the_plateau_edits_installed_and_kept_per_seed(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    runs = tmp_path / "runs"
+    _run(runs, "dense", 0, (1.0, 2.0))
+    for seed in (0, 1):
+        _run(runs, "mira", seed, (1.0, 2.0))
+    seed0, seed1 = runs / "mira" / "seed0", runs / "mira" / "seed1"
+    _edit(seed0, "000-step4000", "plateau", 4000, True, kept=True)
+    _edit(seed0, "001-step6000", "anomaly", 6000, True)  # not the plateau detector's: not counted
+    _edit(seed0, "002-step9000", "plateau", 9000, True, kept=False)
+    _edit(seed0, "003-step12000", "plateau", 12000, False)  # refused: nothing installed
+    _edit(seed1, "000-step17000", "plateau", 17000, True, kept=True)  # judged after the budget: on probation
+    (seed1 / "interventions" / "000-step17000" / "probation.json").write_text(
+        json.dumps({"step": 27000, "kept": True}))
+    spec = _spec(tmp_path, runs)
+    spec.write_text(spec.read_text().replace("budgets = [10000, 20000]", "budgets = [10000, 20000]\nescapes = true"))
+    meta, tables = page.load_spec(spec)
+
+    text = page.render(meta, tables, figures=None)
+
+    assert "escapes kept/installed by 20k, per seed" in text
+    mira = next(line for line in text.splitlines() if line.startswith("| MIRA |"))
+    dense = next(line for line in text.splitlines() if line.startswith("| Dense"))
+    assert mira.endswith("| 1/2, 0/1 | 120 |")
+    assert dense.endswith("| — | 100 |")  # no outer loop, no escapes
+
+
 def test_a_source_can_rename_its_method_and_count_its_program_file_as_the_task_own(
         tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
     page = load_bench("results_page")
