@@ -275,8 +275,11 @@ def execute_run(spec_data: dict[str, Any], out: str, threads: int | None = None,
     return {"run": spec.run_id, "action": plan.action, "returncode": 0, "wall_s": time.time() - t0}
 
 
-def stop_all(procs: list[subprocess.Popen[bytes]], grace_s: float = 30.0) -> None:
-    """SIGINT (the trainer records "interrupted"), then SIGKILL whatever is left after ``grace_s``."""
+def stop_all(procs: list[subprocess.Popen[bytes]], grace_s: float = 180.0) -> None:
+    """SIGINT (the trainer records "interrupted"), then SIGKILL whatever is left after ``grace_s``. The grace
+    covers what a run finishes before it stops: an evaluation or outer-loop cycle in progress and a checkpoint
+    that holds the replay buffer (hundreds of megabytes on the larger tasks); a run killed before that
+    resumes from its previous checkpoint, up to a checkpoint interval behind."""
     for p in procs:
         if p.poll() is None:
             with contextlib.suppress(ProcessLookupError):

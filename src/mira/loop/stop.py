@@ -4,7 +4,9 @@ While the trainer runs, either signal only *asks* it to stop: it finishes the st
 evaluation or an outer-loop cycle in progress completes first), truncates the episode it is in, takes a
 checkpoint there, writes ``policy.pt`` and raises :class:`~mira.errors.Interrupted`, which the command
 line records as status ``interrupted`` (exit status 130 for SIGINT, 143 for SIGTERM). A second signal
-stops at once, without that checkpoint (the previous one still resumes the run).
+stops at once, without that checkpoint (the previous one still resumes the run), unless it comes within
+:data:`SAME_REQUEST_S` of the first: then it is the same request arriving twice (``pkill -f mira`` signals
+both a sweep and its runs, and the sweep forwards its own to each run), and the checkpoint is still taken.
 
 Outside the trainer (setting a run up) SIGTERM is made to interrupt like Ctrl-C: :func:`sigterm_interrupts`.
 """
@@ -15,6 +17,7 @@ import contextlib
 import logging
 import signal
 import threading
+import time
 from collections.abc import Iterator
 from types import FrameType
 from typing import Any
@@ -24,6 +27,8 @@ from mira.errors import Interrupted
 log = logging.getLogger(__name__)
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
+SAME_REQUEST_S = 1.0
+"""A second signal this soon after the first asks for the same stop, not for a stop without the checkpoint."""
 
 
 def _main_thread() -> bool:
@@ -36,6 +41,7 @@ class StopRequest:
 
     def __init__(self) -> None:
         self.signum: int | None = None
+        self._first_at = 0.0
         self._previous: dict[int, Any] = {}
 
     def __enter__(self) -> StopRequest:
@@ -51,8 +57,11 @@ class StopRequest:
 
     def _handle(self, signum: int, _frame: FrameType | None) -> None:
         if self.signum is not None:
+            if time.monotonic() - self._first_at < SAME_REQUEST_S:
+                log.warning("%s: already stopping with a checkpoint", signal.Signals(signum).name)
+                return
             raise Interrupted(signum)  # asked twice: stop now, without the checkpoint
-        self.signum = signum
+        self.signum, self._first_at = signum, time.monotonic()
         log.warning("%s: stopping after this step with a checkpoint (send it again to stop at once)",
                     signal.Signals(signum).name)
 
