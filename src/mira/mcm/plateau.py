@@ -17,10 +17,11 @@ paper's signature (PEG collapsing, RPE stuck high), not required: their scale di
 the return's slope is what says a run is stuck. After a plateau is reported the detector forgets its
 history, so the next report needs a fresh stall (two windows) of its own.
 
-A flat stretch below the run's earlier best (a dip after the warm-up) is a plateau too: an escape
-installed in such a dip, while the critic is still relearning, can carry the recovery higher (the
-results page's HumanoidStandup table: seed 0 with and without its escapes), so the detector does not
-wait for a flat top.
+A flat stretch below the run's earlier best (a dip after the warm-up) is a plateau too; the detector
+does not wait for a flat top. An escape installed in a dip is judged against a return that recovers
+anyway, so its probation can keep an escape that did nothing: on HumanoidStandup, seed 0 kept one at
+32k and was level with the same seed without escapes at 100k; its gain came from an escape at a flat
+top (the results page). Whether to answer dips at all is open.
 """
 
 from __future__ import annotations
