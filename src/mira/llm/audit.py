@@ -19,7 +19,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from mira.llm.base import LLMBackend, LLMError, LLMReply, LLMRequest, engineer_label
+from mira.llm.base import LLMBackend, LLMError, LLMReply, LLMRequest, WrappedBackend, engineer_label
 from mira.runio.atomic import append_line, read_jsonl
 
 EXCHANGES_FILE = Path("llm") / "exchanges.jsonl"
@@ -120,7 +120,7 @@ class AuditLog:
         return exchanges
 
 
-class AuditedBackend:
+class AuditedBackend(WrappedBackend):
     """Logs every call through it, successes and failures alike, then passes the outcome on.
 
     The reply comes back with ``exchange_id`` set, for :meth:`record_parse_result`.
@@ -129,14 +129,6 @@ class AuditedBackend:
     def __init__(self, inner: LLMBackend, log: AuditLog) -> None:
         self.inner = inner
         self.log = log
-
-    @property
-    def name(self) -> str:
-        return self.inner.name
-
-    @property
-    def model(self) -> str:
-        return self.inner.model
 
     def complete(self, request: LLMRequest) -> LLMReply:
         started = time.monotonic()

@@ -221,6 +221,24 @@ class LLMBackend(Protocol):
     def complete(self, request: LLMRequest) -> LLMReply: ...
 
 
+class WrappedBackend:
+    """A backend that answers by asking ``inner`` (the cache, the budget, the audit log around it).
+
+    It speaks as ``inner``: ``name`` and ``model`` are ``inner``'s, so a wrapper changes neither the
+    cache key nor who a reply is recorded as written by.
+    """
+
+    inner: LLMBackend
+
+    @property
+    def name(self) -> str:
+        return self.inner.name
+
+    @property
+    def model(self) -> str:
+        return self.inner.model
+
+
 def require_content(content: str | None, *, backend: str, model: str, attempts: int = 1) -> str:
     """Return ``content`` unchanged, or raise :class:`LLMBadReplyError` if it is empty or blank."""
     if content is None or not content.strip():

@@ -14,10 +14,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from mira.llm.base import LLMBackend, LLMBudgetExceededError, LLMError, LLMReply, LLMRequest
+from mira.llm.base import LLMBackend, LLMBudgetExceededError, LLMError, LLMReply, LLMRequest, WrappedBackend
 
 
-class BudgetedBackend:
+class BudgetedBackend(WrappedBackend):
     """Counts calls and tokens to ``inner`` and refuses calls past ``max_calls`` / ``max_tokens_total``.
 
     Every call handed to ``inner`` counts, including ones that fail (they may have been billed).
@@ -37,14 +37,6 @@ class BudgetedBackend:
         self.failed_calls = 0
         self.prompt_tokens = 0
         self.completion_tokens = 0
-
-    @property
-    def name(self) -> str:
-        return self.inner.name
-
-    @property
-    def model(self) -> str:
-        return self.inner.model
 
     @property
     def total_tokens(self) -> int:

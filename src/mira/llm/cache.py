@@ -18,7 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from mira.llm.base import LLMBackend, LLMCacheMissError, LLMReply, LLMRequest
+from mira.llm.base import LLMBackend, LLMCacheMissError, LLMReply, LLMRequest, WrappedBackend
 from mira.runio.atomic import atomic_write_json
 
 log = logging.getLogger(__name__)
@@ -79,7 +79,7 @@ class ResponseCache:
         )
 
 
-class CachedBackend:
+class CachedBackend(WrappedBackend):
     """Answer from the cache when possible; otherwise ask ``inner`` and store its reply.
 
     A hit never calls ``inner`` and comes back with ``cached=True`` and ``attempts=0``. With
@@ -91,14 +91,6 @@ class CachedBackend:
         self.inner = inner
         self.cache = ResponseCache(cache_dir)
         self.offline_only = offline_only
-
-    @property
-    def name(self) -> str:
-        return self.inner.name
-
-    @property
-    def model(self) -> str:
-        return self.inner.model
 
     def key(self, request: LLMRequest) -> str:
         return cache_key(self.inner.name, self.inner.model, request)
