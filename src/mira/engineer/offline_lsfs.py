@@ -79,6 +79,13 @@ def _hint(lo: float, hi: float) -> str:
     return format_range(float(f"{lo - pad:.3g}"), float(f"{hi + pad:.3g}"))
 
 
+def _height_factor(height: CardFeature, role: str) -> dict[str, Any]:
+    """The height term, as progress on a task to rise or as posture elsewhere (only its doc differs)."""
+    return make_factor("r_height", "PHI", f"{num(C_HEIGHT)} * s.{height.name}",
+                       doc=f"{role}: {height.doc or height.name}", units=height.units or "m",
+                       range_hint=_hint(*height.range) if height.range else "[0, 2]")
+
+
 def _square_hint(features: list[CardFeature], coef: float, bound: float) -> str:
     """Range hint of ``-coef · Σ f²``: from the observed ranges (widened), else ``bound`` per term."""
     worst = sum(max(f.range[0] ** 2, f.range[1] ** 2) * 2.25 if f.range else bound for f in features)
@@ -259,16 +266,7 @@ def generic_program(features: list[CardFeature], action_dim: int, task: str, des
     height_task = _is_height_task(task.lower(), desc) and height is not None
     # Progress.
     if height_task and height is not None:
-        factors.append(
-            make_factor(
-                "r_height",
-                "PHI",
-                f"{num(C_HEIGHT)} * s.{height.name}",
-                doc=f"upward progress: {height.doc or height.name}",
-                units=height.units or "m",
-                range_hint=_hint(*height.range) if height.range else "[0, 2]",
-            )
-        )
+        factors.append(_height_factor(height, "upward progress"))
         used.add(height.name)
     else:
         axis, sign = _direction(desc)
@@ -306,16 +304,7 @@ def generic_program(features: list[CardFeature], action_dim: int, task: str, des
         )
         used.update(names)
     if height is not None and height.name not in used:
-        factors.append(
-            make_factor(
-                "r_height",
-                "PHI",
-                f"{num(C_HEIGHT)} * s.{height.name}",
-                doc=f"posture: {height.doc or height.name}",
-                units=height.units or "m",
-                range_hint=_hint(*height.range) if height.range else "[0, 2]",
-            )
-        )
+        factors.append(_height_factor(height, "posture"))
         used.add(height.name)
     if re.search(r"without falling|surviv|alive|terminat", desc):
         notes.append("No survival bonus: a per-step constant is what the decomposition's bias fits.")
