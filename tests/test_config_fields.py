@@ -69,3 +69,13 @@ def test_the_paper_presets_set_table_one_and_the_letter_adds_episodic_alignment(
     assert letter.hars.alignment == "episodic" and letter.hars.kappa() == 1.0
     later = config_from_args(train_parser().parse_args(["--preset", "paper", "--lr", "3e-4"]))
     assert later.agent.lr == 3e-4  # --lr is applied after the preset
+
+
+def test_a_run_without_threads_gets_the_documented_default_of_one_thread() -> None:
+    # The command line's default is the config's: a run started without --threads must not take one
+    # thread per core and oversubscribe a machine shared with other seeds.
+    from mira.train_cli import config_from_args, train_parser
+
+    assert TrainConfig().threads == 1
+    assert config_from_args(train_parser().parse_args(["--out", "x"])).threads == 1
+    assert config_from_args(train_parser().parse_args(["--out", "x", "--threads", "4"])).threads == 4

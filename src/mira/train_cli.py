@@ -83,7 +83,7 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
     t.add_argument("--log-every", type=positive_int, default=c.log_every, help=_help(c, "log_every"))
     t.add_argument("--max-episode-steps", type=positive_int, default=None, help=_help(c, "max_episode_steps"))
     t.add_argument("--device", default=c.device, choices=("auto", "cpu", "cuda"), help=_help(c, "device"))
-    t.add_argument("--threads", type=positive_int, default=None, help=_help(c, "threads"))
+    t.add_argument("--threads", type=positive_int, default=c.threads, help=_help(c, "threads"))
     t.add_argument("--program", default=None, help=_help(c, "program"))
     t.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override any config field, e.g. --set mira.mcm.delta_t=1000 --set hars.shaping_weight=1")
