@@ -17,8 +17,9 @@ class OuterLoopConfig:
     """Held-out episodes rolled out with the frozen policy each cycle (D̃_k)."""
     repair: bool = True
     """Also call SRR on evidence of a structural flaw: a task feature that, cycle after cycle, explains
-    episodic returns the program's factors cannot (:mod:`mira.shaping.attribution`). False: the monitor's
-    anomaly trigger only, as in the paper."""
+    episodic returns the program's factors cannot (:mod:`mira.shaping.attribution`). False: SRR is called by
+    the monitor's own triggers only (its anomaly score, and the plateau detector on cards with a
+    ``band_feature``), as in the paper."""
     mcm: MCMConfig = field(default_factory=MCMConfig)
     """Monitor hyperparameters (ΔT = ``mcm.delta_t`` is the cycle length)."""
     srr: SRRConfig = field(default_factory=SRRConfig)
