@@ -79,3 +79,24 @@ def test_a_run_without_threads_gets_the_documented_default_of_one_thread() -> No
     assert TrainConfig().threads == 1
     assert config_from_args(train_parser().parse_args(["--out", "x"])).threads == 1
     assert config_from_args(train_parser().parse_args(["--out", "x", "--threads", "4"])).threads == 4
+
+
+def test_show_config_lists_every_set_key_with_a_value_that_sets_it_back(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mira.cli import main
+    from mira.config import apply_override
+    from mira.train_cli import describe_config
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--method", "mira", "--preset", "paper", "--set", "mira.mcm.k_cool=7", "--show-config"]) == 0
+    printed = capsys.readouterr().out
+    assert list(tmp_path.iterdir()) == []  # nothing written
+    keys = [line.split(" = ", 1) for line in printed.splitlines() if not line.startswith(" ")]
+    assert ["mira.mcm.k_cool", "7"] in keys and ["agent.lr", "0.0001"] in keys and ["method", '"mira"'] in keys
+    # Every printed key is one --set accepts, and its printed value sets it back: the listing is the config.
+    rebuilt = TrainConfig()
+    for key, value in keys:
+        apply_override(rebuilt, f"{key}={value}")
+    assert describe_config(rebuilt) == printed.rstrip("\n")
+    assert len(keys) == sum(1 for line in describe_config(TrainConfig()).splitlines() if not line.startswith(" "))

@@ -130,6 +130,7 @@ def test_eta_from_completed_wall_times() -> None:
         ("n.toml", "tasks = [\"nowhere.toml\"]\n", "does not exist"),
         ("o.toml", "tasks = [\"mars\"]\n", "unknown task 'mars'"),
         ("p.toml", "methods = 3\n", "expected a list of names"),
+        ("q.toml", "train_args = \"--show-config\"\n", "trains nothing: use it with mira train"),
     ],
 )
 def test_bad_sweep_files_raise_one_line_usage_errors(tmp_path: Path, name: str, text: str,

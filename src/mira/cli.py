@@ -32,7 +32,7 @@ from mira.errors import DiskFullError, Interrupted, MiraError, NonFiniteError, U
 from mira.loop.stop import sigterm_interrupts
 from mira.methods import build_method
 from mira.tasks.card import card_to_dict, load_task
-from mira.train_cli import add_llm_flags, add_train_arguments, config_from_args
+from mira.train_cli import add_llm_flags, add_train_arguments, config_from_args, describe_config
 from mira.version import __version__
 
 
@@ -198,6 +198,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     from mira.tasks.envs import action_dim
 
     gemm.backend()  # a bad MIRA_GEMM is a usage error before anything is written
+    if args.show_config:
+        if args.resume:
+            raise UsageError("--show-config describes a new run's configuration; a run's own is in RUN_DIR/config.json")
+        print(describe_config(config_from_args(args)))
+        return 0
     if args.resume:
         path = prepare_run_dir(args.resume, resume=True, overwrite=False)
         try:

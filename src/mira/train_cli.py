@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import argparse
 import ast
+import dataclasses
 import inspect
 import itertools
+import json
 import textwrap
 from functools import cache
+from typing import Any
 
 from mira.agents import ALGOS
 from mira.agents.base import AgentConfig
@@ -88,6 +91,9 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
     t.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override any config field, e.g. --set mira.mcm.delta_t=1000 --set hars.shaping_weight=1")
     t.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
+    t.add_argument("--show-config", action="store_true",
+                   help="print every configuration key (what --set takes) with the value this command line gives "
+                        "it and its docstring, then exit without training or writing anything")
     add_llm_flags(t)
 
 
@@ -119,3 +125,23 @@ def train_parser(prog: str = "mira train") -> argparse.ArgumentParser:
     parser = Parser(prog=prog)
     add_train_arguments(parser)
     return parser
+
+
+def describe_config(cfg: TrainConfig) -> str:
+    """Every key ``--set`` accepts, as ``key = value`` (the value in ``--set``'s JSON syntax) over its docstring."""
+    lines: list[str] = []
+
+    def walk(section: Any, prefix: str) -> None:
+        section_type: type = type(section)
+        docs = field_docs(section_type)
+        for f in dataclasses.fields(section):
+            value = getattr(section, f.name)
+            if dataclasses.is_dataclass(value):
+                walk(value, f"{prefix}{f.name}.")
+                continue
+            lines.append(f"{prefix}{f.name} = {json.dumps(value)}")
+            if doc := docs.get(f.name):
+                lines.extend(textwrap.wrap(doc, 100, initial_indent="    # ", subsequent_indent="    # "))
+
+    walk(cfg, "")
+    return "\n".join(lines)

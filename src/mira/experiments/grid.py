@@ -236,6 +236,8 @@ def check_train_args(train_args: Sequence[str]) -> None:
         flag = arg.split("=", 1)[0]
         if flag in GRID_FLAGS:
             raise UsageError(f"{flag} is set by the sweep grid and cannot be passed in train args")
+        if flag == "--show-config":
+            raise UsageError("--show-config prints a configuration and trains nothing: use it with mira train")
     from mira.train_cli import train_parser
 
     err = io.StringIO()
