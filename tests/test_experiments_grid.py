@@ -348,3 +348,17 @@ def test_every_benchmark_sweep_file_builds_its_grid(path: Path) -> None:
     # The results page prints these files as its tables' commands: each must build a grid as it stands.
     grid, _ = build_grid(file=path)
     assert grid.tasks and grid.methods and grid.seeds
+
+
+def test_a_dry_run_needs_no_out_and_a_real_sweep_does(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    from mira.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    grid = ["sweep", "--tasks", "halfcheetah", "--methods", "dense", "--algos", "sac", "--seeds", "2", "--steps", "1"]
+    assert main([*grid, "--dry-run", "--no-probe"]) == 0
+    printed = capsys.readouterr().out
+    assert "--out OUT/halfcheetah/sac/dense/seed1" in printed
+    assert list(tmp_path.iterdir()) == []
+    assert main(grid) == 2
+    assert "--out DIR is required" in capsys.readouterr().err

@@ -27,6 +27,10 @@ def _positive_float(text: str) -> float:
     return value
 
 
+DRY_RUN_OUT = "OUT"
+"""Where ``mira sweep --dry-run`` without ``--out`` shows the runs: a placeholder to replace."""
+
+
 def add_sweep_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register ``sweep``: tasks × methods × algos × seeds as independent, resumable runs."""
     from mira.experiments.grid import PRESET_NOTES
@@ -51,7 +55,9 @@ def add_sweep_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="a count K (seeds 0..K-1), a list 0,1,2 or a range 0-4 (a single seed S: 'S,'; "
                         "0 alone is seed 0)")
     p.add_argument("--steps", type=_positive_int, default=None, help="environment steps per run")
-    p.add_argument("--out", required=True, help="sweep output directory")
+    p.add_argument("--out", default=None,
+                   help="sweep output directory (required, except with --dry-run: there the runs are shown under "
+                        f"{DRY_RUN_OUT}/ when it is not given)")
     p.add_argument("--workers", type=_positive_int, default=None,
                    help="runs in parallel on the local pool (default 1; the Ray backend starts a local "
                         "instance with this many CPUs when no --address is given)")
@@ -118,9 +124,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         "workers": args.workers, "backend": args.backend, "address": args.address,
         "cpus_per_run": args.cpus_per_run, "retries": args.retries,
     }
+    if args.out is None and not args.dry_run:
+        raise UsageError("--out DIR is required (only --dry-run can do without it)")
     grid, settings = build_grid(preset=args.preset, file=args.file, overrides=overrides)
     if args.dry_run:
-        dry_run(grid, args.out, workers=settings.get("workers"), probe=args.probe and not args.no_probe)
+        dry_run(grid, args.out or DRY_RUN_OUT, workers=settings.get("workers"), probe=args.probe and not args.no_probe)
         return 0
     options = SweepOptions(workers=settings.get("workers"), backend=settings.get("backend", "pool"),
                            address=settings.get("address"),
