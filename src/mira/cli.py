@@ -27,7 +27,7 @@ import torch
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from mira.cli_types import Parser, nonneg_int, positive_int
-from mira.config import TrainConfig, drop_removed_fields, from_dict, to_dict
+from mira.config import TrainConfig, apply_override, drop_removed_fields, from_dict, to_dict
 from mira.errors import DiskFullError, Interrupted, MiraError, NonFiniteError, UsageError
 from mira.loop.stop import sigterm_interrupts
 from mira.methods import build_method
@@ -191,6 +191,65 @@ def extend_budget(path: Path, saved: dict[str, Any], cfg: TrainConfig, steps: in
     return extended
 
 
+FORK_FIXED = ("task", "algo", "learning_starts", "buffer_size", "batch_size", "lr", "preset", "hidden", "eval_every",
+              "eval_episodes", "checkpoint_every", "log_every", "max_episode_steps", "program")
+"""Flags a fork cannot change: they decide what the checkpoint holds (networks, buffer, program v0) or how the
+run is measured, so a fork with them changed could not load the checkpoint or be compared with its parent."""
+FORK_SETTABLE = ("mira.", "llm.", "hars.")
+"""The ``--set`` sections a fork may change: the outer loop, the reward engineer and the shaping."""
+
+
+def prepare_fork(args: argparse.Namespace) -> tuple[Path, TrainConfig, dict[str, Any]]:
+    """``--fork PARENT --out DIR``: the fork's directory (:mod:`mira.runio.fork`), its configuration (the
+    parent's with the fork's changes) and its ``forked_from`` record for ``config.json``."""
+    from mira.methods import fork_compatible
+    from mira.runio.fork import copy_fork_files, fork_checkpoint, program_version_at
+    from mira.runio.rundir import prepare_run_dir
+    from mira.train_cli import train_parser
+
+    parent = Path(args.fork)
+    if args.resume or args.out is None:
+        raise UsageError("--fork RUN_DIR starts a new run: give it --out DIR (and no --resume)")
+    defaults = train_parser().parse_args([])
+    fixed = [f"--{name.replace('_', '-')}" for name in FORK_FIXED if getattr(args, name) != getattr(defaults, name)]
+    fixed += [f"--set {a}" for a in args.overrides if not a.split("=", 1)[0].strip().startswith(FORK_SETTABLE)]
+    if fixed:
+        raise UsageError(f"--fork {parent}: a fork continues its parent's networks, buffer and evaluations, so "
+                         f"{', '.join(fixed)} cannot change; it takes --seed, --steps, --method, the LLM flags, "
+                         f"--threads, --device and --set {'/'.join(p + '*' for p in FORK_SETTABLE)}")
+    try:
+        saved = json.loads((parent / "config.json").read_text(encoding="utf-8"))
+        cfg: TrainConfig = from_dict(TrainConfig, drop_removed_fields(saved["config"], f"--fork {parent}: config.json"))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UsageError(f"--fork {parent}: not a usable run directory ({exc})") from exc
+    method = cfg.method if args.method is None else args.method
+    if not fork_compatible(cfg.method, method):
+        raise UsageError(f"--fork {parent} --method {method}: a {cfg.method} checkpoint does not continue as {method}")
+    step, state = fork_checkpoint(parent, args.fork_step)
+    steps = cfg.steps if args.steps is None else args.steps
+    if steps <= step:
+        raise UsageError(f"--fork {parent}: the checkpoint is at step {step}; --steps {steps} leaves nothing to train")
+    cfg = dataclasses.replace(cfg, method=method, steps=steps, seed=cfg.seed if args.seed is None else args.seed,
+                              threads=args.threads, device=args.device)
+    for flag, key in (("llm", "backend"), ("base_url", "base_url"), ("api_key_env", "api_key_env"),
+                      ("llm_cache", "cache_dir"), ("llm_offline_only", "offline_only")):
+        if getattr(args, flag) != getattr(defaults, flag):
+            setattr(cfg.llm, key, getattr(args, flag))
+    for assignment in args.overrides:
+        apply_override(cfg, assignment)
+    path = prepare_run_dir(args.out, resume=False, overwrite=args.overwrite)
+    try:
+        copy_fork_files(parent, step, path, program_version_at(state))
+    except OSError as exc:
+        shutil.rmtree(path, ignore_errors=True)
+        raise UsageError(f"--fork {parent}: cannot copy its checkpoint to {path} ({exc})") from exc
+    manifest = json.loads((path / "checkpoints" / f"ckpt-{step:010d}.json").read_text(encoding="utf-8"))
+    forked_from = {"run": str(parent.resolve()), "step": step, "sha256": manifest["sha256"],
+                   "seed": saved["config"].get("seed"), "method": saved["config"].get("method"),
+                   "source": (saved.get("environment") or {}).get("source")}
+    return path, cfg, forked_from
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from mira.agents import gemm
     from mira.loop.trainer import Trainer, TrainSetup, resolve_device
@@ -199,16 +258,21 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     gemm.backend()  # a bad MIRA_GEMM is a usage error before anything is written
     if args.show_config:
-        if args.resume:
+        if args.resume or args.fork:
             raise UsageError("--show-config describes a new run's configuration; a run's own is in RUN_DIR/config.json")
         print(describe_config(config_from_args(args)))
         return 0
-    if args.resume:
+    forked_from: dict[str, Any] | None = None
+    cfg: TrainConfig
+    if args.fork:
+        path, cfg, forked_from = prepare_fork(args)
+        card = load_task(cfg.task)
+    elif args.resume:
         path = prepare_run_dir(args.resume, resume=True, overwrite=False)
         try:
             saved = json.loads((path / "config.json").read_text(encoding="utf-8"))
             settings = drop_removed_fields(saved["config"], f"--resume {path}: config.json")
-            cfg: TrainConfig = from_dict(TrainConfig, settings)
+            cfg = from_dict(TrainConfig, settings)
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise UsageError(f"--resume {path}: config.json is unusable ({exc})") from exc
         if args.steps is not None and args.steps != cfg.steps:
@@ -221,6 +285,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 "--resume %s on a different machine, software or source (%s): the run continues from its checkpoint, "
                 "but not bit for bit as it would have where it started", path, "; ".join(drift))
             record_resume(path, drift, facts)
+        forked_from = saved.get("forked_from")
     else:
         if args.out is None:
             raise UsageError("train: --out DIR is required (or --resume DIR)")
@@ -240,11 +305,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         if not args.resume:
             run.write_config({"config": to_dict(cfg), "task_card": card_to_dict(card),
                               "method": {"description": parts.description, **parts.reward.describe()},
-                              "environment": environment_facts()})
+                              "environment": environment_facts(),
+                              **({"forked_from": forked_from} if forked_from else {})})
         # Without a terminal (a log file, a pipe) progress comes as plain lines, never as a redrawn bar.
         quiet = bool(args.quiet) or not sys.stderr.isatty()
         setup = TrainSetup(config=cfg, card=card, device=resolve_device(cfg.device), reward=parts.reward,
-                           hooks=parts.hooks, quiet=quiet)
+                           hooks=parts.hooks, quiet=quiet, fork_step=forked_from["step"] if forked_from else None)
         trainer = Trainer(setup, run)
     except BaseException:
         if not args.resume:

@@ -59,14 +59,22 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
     c = TrainConfig
     builtin = ", ".join(builtin_task_names())
     t.add_argument("--task", default=c.task, help=_help(c, "task", extra=f" Built in: {builtin}."))
-    t.add_argument("--method", default=c.method, choices=sorted(METHODS), help=_help(c, "method"))
+    t.add_argument("--method", default=None, choices=sorted(METHODS),
+                   help=_help(c, "method", extra=" With --fork: the parent's unless given."))
     t.add_argument("--algo", default=c.algo, choices=ALGOS, help=_help(c, "algo"))
     t.add_argument("--steps", type=positive_int, default=None,
                    help=_help(c, "steps", extra=" With --resume, a larger budget extends the run."))
-    t.add_argument("--seed", type=nonneg_int, default=c.seed, help=_help(c, "seed"))
+    t.add_argument("--seed", type=nonneg_int, default=None,
+                   help=_help(c, "seed", extra=" With --fork: the fork's own (default: the parent's)."))
     t.add_argument("--out", default=None, help="run directory (required unless --resume)")
     t.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR from its last checkpoint")
     t.add_argument("--overwrite", action="store_true", help="replace an existing non-empty --out directory")
+    t.add_argument("--fork", default=None, metavar="RUN_DIR",
+                   help="start --out from a checkpoint of RUN_DIR under a seed of its own (--seed): the parent's "
+                        "configuration, with --steps, --method (among mira, mira-no-mcm, mira-no-srr), the LLM "
+                        "flags and --set mira.*/llm.*/hars.* changed as given; for paired experiments")
+    t.add_argument("--fork-step", type=positive_int, default=None, metavar="STEP",
+                   help="the parent's checkpoint to fork from (default: its newest)")
     t.add_argument("--learning-starts", type=nonneg_int, default=c.learning_starts, help=_help(c, "learning_starts"))
     t.add_argument("--buffer-size", type=positive_int, default=c.buffer_size, help=_help(c, "buffer_size"))
     t.add_argument("--batch-size", type=positive_int, default=AgentConfig.batch_size,
@@ -100,8 +108,9 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """The run's configuration: the dataclass defaults, then ``--preset``, the flags, ``--lr`` and ``--set``."""
     cfg = TrainConfig(
-        task=args.task, method=args.method, algo=args.algo,
-        steps=TrainConfig.steps if args.steps is None else args.steps, seed=args.seed,
+        task=args.task, method=TrainConfig.method if args.method is None else args.method, algo=args.algo,
+        steps=TrainConfig.steps if args.steps is None else args.steps,
+        seed=TrainConfig.seed if args.seed is None else args.seed,
         learning_starts=args.learning_starts, buffer_size=args.buffer_size, eval_every=args.eval_every,
         eval_episodes=args.eval_episodes, checkpoint_every=args.checkpoint_every, log_every=args.log_every,
         max_episode_steps=args.max_episode_steps, device=args.device, threads=args.threads, program=args.program,

@@ -43,7 +43,8 @@ from typing import Any
 from mira.errors import UsageError
 
 # Flags the grid owns: a run's identity and its directory. They may not be passed through.
-GRID_FLAGS = ("--task", "--program", "--method", "--algo", "--seed", "--steps", "--out", "--resume", "--overwrite")
+GRID_FLAGS = ("--task", "--program", "--method", "--algo", "--seed", "--steps", "--out", "--resume", "--overwrite",
+              "--fork", "--fork-step")
 
 TASK_PROGRAM = "task"
 """In a list of initial programs, the task's own program (``mira train`` without ``--program``)."""

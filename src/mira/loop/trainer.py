@@ -78,6 +78,9 @@ class TrainSetup:
     reward: RewardSource
     hooks: list[CycleHook] = field(default_factory=list)
     quiet: bool = False
+    fork_step: int | None = None
+    """For a fork (``mira train --fork``): the parent's step it continues from. Starting from the checkpoint
+    of that step, the run draws every random stream afresh from its own seed."""
 
 
 @dataclass
@@ -356,9 +359,12 @@ class Trainer:
         random.setstate(rng["python"])
         if rng.get("cuda") is not None and torch.cuda.is_available():
             torch.cuda.set_rng_state_all(rng["cuda"])
-        self.env.reset(seed=self.setup.config.seed)
-        self.env.unwrapped.np_random.bit_generator.state = rng["env"]
-        self._obs, _ = self.env.reset()
+        if step == self.setup.fork_step:
+            self._reseed(step)
+        else:
+            self.env.reset(seed=self.setup.config.seed)
+            self.env.unwrapped.np_random.bit_generator.state = rng["env"]
+            self._obs, _ = self.env.reset()
         self.recent_returns = list(state["recent_returns"])
         if state["last_eval"] is not None:
             le = state["last_eval"]
@@ -370,6 +376,20 @@ class Trainer:
             self._next_ckpt += self.setup.config.checkpoint_every
         log.info("resumed from checkpoint at step %d", step)
         return True
+
+
+    def _reseed(self, step: int) -> None:
+        """A fork's start: every random stream of the loop (actions, replay sampling, the environment) drawn
+        from the fork's seed and the step, so that forks of one checkpoint with different seeds part at once
+        and a fork resumed before its first checkpoint repeats itself."""
+        streams = np.random.SeedSequence([self.setup.config.seed, step])
+        python_seed, torch_seed, env_seed = (int(x) for x in streams.generate_state(3))
+        random.seed(python_seed)
+        np.random.seed(python_seed)
+        torch.manual_seed(torch_seed)
+        self.rng = np.random.default_rng(streams.spawn(1)[0])
+        self._obs, _ = self.env.reset(seed=env_seed)
+        log.info("fork: reseeded from seed %d at step %d", self.setup.config.seed, step)
 
 
 def _seed_everything(seed: int) -> None:

@@ -65,5 +65,15 @@ METHODS: dict[str, MethodBuilder] = {
 }
 
 
+FORK_FAMILIES: tuple[frozenset[str], ...] = (frozenset({"mira", "mira-no-mcm", "mira-no-srr"}),)
+"""Methods whose checkpoints load into one another (the same reward source and outer loop, in other modes):
+a fork (``mira train --fork``) may switch between them, e.g. continue a ``mira`` run with SRR off."""
+
+
+def fork_compatible(parent: str, method: str) -> bool:
+    """Whether a checkpoint of a ``parent`` run can continue as ``method``."""
+    return parent == method or any(parent in family and method in family for family in FORK_FAMILIES)
+
+
 def build_method(config: TrainConfig, card: TaskCard, run_dir: Path) -> MethodParts:
     return METHODS[config.method](config, card, run_dir)
