@@ -74,12 +74,46 @@ def test_a_fork_resumed_from_its_first_checkpoint_repeats_itself(parent: Path, t
     assert _evals(again) == _evals(whole)
 
 
+def _with_escape(parent: Path, out: Path) -> Path:
+    """The parent's program with a bounded SHAPE potential added (an escape ramp on the torso's height)."""
+    program = json.loads((parent / "programs" / "v000.json").read_text())
+    program["factors"].append({
+        "name": "psi_escape", "type": "SHAPE", "units": "1", "range_hint": "[0, 50]",
+        "doc": "escape potential: a bounded ramp above the torso height where the policy settles",
+        "code": "def psi_escape(s):\n    return 25.0 * (1.0 + np.tanh((s.torso_height - 0.1) / 0.05))\n"})
+    program["rationale"] = "an escape ramp"
+    out.write_text(json.dumps(program))
+    return out
+
+
+@pytest.mark.slow
+def test_a_fork_installs_a_program_as_an_edit_and_a_resume_installs_it_again(parent: Path, tmp_path: Path) -> None:
+    escape = _with_escape(parent, tmp_path / "escape.json")
+    plain, edited, again = tmp_path / "plain", tmp_path / "edited", tmp_path / "again"
+    assert _fork(parent, plain, "--seed", "4", "--method", "mira-no-srr") == 0
+    assert _fork(parent, edited, "--seed", "4", "--method", "mira-no-srr", "--fork-program", str(escape)) == 0
+    installed = json.loads((edited / "programs" / "v001.json").read_text())
+    assert installed["version"] == 1 and installed["parent_version"] == 0
+    assert [f["name"] for f in installed["factors"]][-1] == "psi_escape"
+    assert (edited / "programs" / "v001.diff").is_file() and not (plain / "programs" / "v001.json").exists()
+    assert json.loads((edited / "config.json").read_text())["forked_from"]["program"]["factors"][-1]["type"] == "SHAPE"
+    assert _evals(edited) != _evals(plain)  # the same run but for the potential's γΨ(s′) − Ψ(s)
+
+    assert _fork(parent, again, "--seed", "4", "--method", "mira-no-srr", "--fork-program", str(escape)) == 0
+    shutil.rmtree(again / "checkpoints")
+    shutil.copytree(parent / "checkpoints", again / "checkpoints",
+                    ignore=lambda _, names: [n for n in names if not n.startswith("ckpt-0000000800.")])
+    assert main(["train", "--resume", str(again), "--quiet"]) == 0
+    assert _evals(again) == _evals(edited)
+
+
 @pytest.mark.parametrize(("extra", "message"), [
     (["--lr", "1e-3"], "--lr cannot change"),
     (["--set", "agent.tau=0.01"], "--set agent.tau=0.01 cannot change"),
     (["--method", "hars"], "a mira checkpoint does not continue as hars"),
     (["--fork-step", "400"], "no checkpoint at that step (the run keeps checkpoints at 800, 1200)"),
     (["--fork-step", "1200", "--steps", "1200"], "leaves nothing to train"),
+    (["--fork-program", "/nonexistent/program.json"], "/nonexistent/program.json"),
 ])
 @pytest.mark.slow
 def test_a_fork_that_cannot_continue_its_parent_is_refused(parent: Path, tmp_path: Path, extra: list[str],
@@ -95,6 +129,8 @@ def test_a_fork_of_a_directory_without_a_run_is_refused(tmp_path: Path, capsys: 
     assert "not a usable run directory" in capsys.readouterr().err
     assert main(["train", "--fork", str(tmp_path)]) == 2
     assert "give it --out DIR" in capsys.readouterr().err
+    assert main(["train", "--fork-program", str(tmp_path / "p.json"), "--out", str(tmp_path / "x")]) == 2
+    assert "give --fork RUN_DIR too" in capsys.readouterr().err
 
 
 def test_a_sweep_does_not_pass_fork_through(tmp_path: Path) -> None:

@@ -225,6 +225,7 @@ def prepare_fork(args: argparse.Namespace) -> tuple[Path, TrainConfig, dict[str,
     method = cfg.method if args.method is None else args.method
     if not fork_compatible(cfg.method, method):
         raise UsageError(f"--fork {parent} --method {method}: a {cfg.method} checkpoint does not continue as {method}")
+    program = fork_program(args.fork_program, method, cfg.task) if args.fork_program else None
     step, state = fork_checkpoint(parent, args.fork_step)
     steps = cfg.steps if args.steps is None else args.steps
     if steps <= step:
@@ -247,7 +248,37 @@ def prepare_fork(args: argparse.Namespace) -> tuple[Path, TrainConfig, dict[str,
     forked_from = {"run": str(parent.resolve()), "step": step, "sha256": manifest["sha256"],
                    "seed": saved["config"].get("seed"), "method": saved["config"].get("method"),
                    "source": (saved.get("environment") or {}).get("source")}
+    if program is not None:
+        forked_from["program_file"] = str(Path(args.fork_program).resolve())
+        forked_from["program"] = program.to_json()  # a resume before the fork's first checkpoint installs it again
     return path, cfg, forked_from
+
+
+def fork_program(path: str, method: str, task: str) -> Any:
+    """``--fork-program FILE``: the program, checked as an LLM's would be (static checks and the sandbox)."""
+    from mira.engineer.admission import admit_program
+    from mira.factors.program import load_program
+    from mira.methods import FORK_FAMILIES
+
+    if not any(method in family and "mira" in family for family in FORK_FAMILIES):
+        raise UsageError(f"--fork-program {path}: only a mira method installs programs while it trains, not {method}")
+    program = load_program(path)
+    card = load_task(task)
+    if program.task != card.name:
+        raise UsageError(f"--fork-program {path}: a program for task {program.task!r}, not {card.name!r}")
+    gates = admit_program(program, card)
+    if not gates.ok:
+        raise UsageError(f"--fork-program {path}: not admissible: " + "; ".join(gates.errors))
+    return program
+
+
+def installed_at_fork(forked_from: dict[str, Any] | None) -> Any:
+    """The program a fork installs at its start (recorded in its ``config.json``), or None."""
+    if not forked_from or forked_from.get("program") is None:
+        return None
+    from mira.factors.program import FactorProgram
+
+    return FactorProgram.from_json(forked_from["program"])
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -264,6 +295,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         return 0
     forked_from: dict[str, Any] | None = None
     cfg: TrainConfig
+    if args.fork_program and not args.fork:
+        raise UsageError("--fork-program FILE installs a program at a fork: give --fork RUN_DIR too")
     if args.fork:
         path, cfg, forked_from = prepare_fork(args)
         card = load_task(cfg.task)
@@ -310,7 +343,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         # Without a terminal (a log file, a pipe) progress comes as plain lines, never as a redrawn bar.
         quiet = bool(args.quiet) or not sys.stderr.isatty()
         setup = TrainSetup(config=cfg, card=card, device=resolve_device(cfg.device), reward=parts.reward,
-                           hooks=parts.hooks, quiet=quiet, fork_step=forked_from["step"] if forked_from else None)
+                           hooks=parts.hooks, quiet=quiet, fork_step=forked_from["step"] if forked_from else None,
+                           fork_program=installed_at_fork(forked_from))
         trainer = Trainer(setup, run)
     except BaseException:
         if not args.resume:

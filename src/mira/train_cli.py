@@ -75,6 +75,9 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
                         "flags and --set mira.*/llm.*/hars.* changed as given; for paired experiments")
     t.add_argument("--fork-step", type=positive_int, default=None, metavar="STEP",
                    help="the parent's checkpoint to fork from (default: its newest)")
+    t.add_argument("--fork-program", default=None, metavar="FILE",
+                   help="with --fork (a mira method): install this factor program at the fork, as an accepted edit "
+                        "is installed, after the checker admits it: the A/B test of a reward edit from one state")
     t.add_argument("--learning-starts", type=nonneg_int, default=c.learning_starts, help=_help(c, "learning_starts"))
     t.add_argument("--buffer-size", type=positive_int, default=c.buffer_size, help=_help(c, "buffer_size"))
     t.add_argument("--batch-size", type=positive_int, default=AgentConfig.batch_size,

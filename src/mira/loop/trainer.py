@@ -81,6 +81,8 @@ class TrainSetup:
     fork_step: int | None = None
     """For a fork (``mira train --fork``): the parent's step it continues from. Starting from the checkpoint
     of that step, the run draws every random stream afresh from its own seed."""
+    fork_program: Any | None = None
+    """For a fork with ``--fork-program``: the factor program its hooks install at the fork."""
 
 
 @dataclass
@@ -361,6 +363,8 @@ class Trainer:
             torch.cuda.set_rng_state_all(rng["cuda"])
         if step == self.setup.fork_step:
             self._reseed(step)
+            for hook in self.setup.hooks:
+                hook.on_fork(self.run_dir, self.setup.fork_program)
         else:
             self.env.reset(seed=self.setup.config.seed)
             self.env.unwrapped.np_random.bit_generator.state = rng["env"]

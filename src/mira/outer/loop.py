@@ -53,6 +53,7 @@ from mira.outer.records import CycleRecords
 from mira.outer.repair import StructuralCheck
 from mira.runio.atomic import atomic_write_json, atomic_write_text
 from mira.runio.failpoints import failpoint
+from mira.runio.rundir import RunDir
 from mira.shaping.attribution import ReturnAttribution
 from mira.shaping.factors import ProgramFactorSource
 from mira.shaping.source import HarsReward
@@ -337,6 +338,20 @@ class MiraOuterLoop:
                                   self.structural.triggered)
 
     # ------------------------------------------------------------------------------------- checkpoint
+    def on_fork(self, run: RunDir, program: Any | None) -> None:
+        """Install ``program`` (``mira train --fork-program``) as an accepted edit is installed: the next
+        version, saved with its diff, the shaping switched to it."""
+        if program is None:
+            return
+        old = self.program
+        self.program = program.with_factors(list(program.factors), version=old.version + 1,
+                                            parent_version=old.version, edits=(), diff="",
+                                            rationale=f"installed at the fork: {program.rationale}".strip())
+        save_program_version(run.programs, old, self.program)
+        self.hars.set_program(ProgramFactorSource(self.program, self.card))
+        log.info("fork: program v%d installed (%s)", self.program.version,
+                 ", ".join(f.name for f in self.program.factors))
+
     def state_dict(self) -> dict[str, Any]:
         return {
             "cycle": self.cycle,
