@@ -332,21 +332,22 @@ def add_escape_bonus(ev: RequestContext, why: str) -> tuple[dict, list[dict]] | 
     return _edit("Add", [name], params, why), [*copy.deepcopy(ev.factors), new]
 
 
-def add_escape_potential(ev: RequestContext) -> tuple[dict, list[dict]] | None:
+def add_escape_potential(ev: RequestContext, steps: float = ESCAPE_STEPS) -> tuple[dict, list[dict]] | None:
     """A SHAPE factor Ψ(s) = β · σ((z − c) / w), written with tanh: about 0 in the band where the episodes settle,
-    rising over a ramp of width w (:data:`ESCAPE_RAMP_SHARE`) centred one w above it (c = center + w), bounded by β."""
+    rising over a ramp of width w (:data:`ESCAPE_RAMP_SHARE`) centred one w above it (c = center + w), bounded by
+    β = ``steps`` of the plateau's reward per step."""
     if (p := ev.plateau) is None:
         return None
     feature, (lo, hi) = str(p["feature"]), p["visited"]
     climb = 0.0 if p.get("start") is None else abs(float(p["center"]) - float(p["start"]))
     width = max(2.0 * float(p["halfwidth"]), ESCAPE_RAMP_SHARE * (hi - lo), ESCAPE_CLIMB_SHARE * climb, 1e-3)
-    center, beta = float(p["center"]) + width, ESCAPE_STEPS * max(abs(float(p["reward_per_step"])), 1e-6)
+    center, beta = float(p["center"]) + width, steps * max(abs(float(p["reward_per_step"])), 1e-6)
     expr = f"{num(beta / 2.0)} * (1.0 + np.tanh((s.{feature} - {num(center)}) / {num(2.0 * width)}))"
     band = f"{feature} = {num(float(p['center']))} ± {num(float(p['halfwidth']))}"
     name = _fresh_name(ev, "psi_escape")
     new = make_factor(name, "SHAPE", expr, units="1", range_hint=format_range(0.0, beta),
                       doc=f"escape potential above the band {band} where the policy settles: a ramp of width "
-                      f"{num(width)} up to {num(beta)} ({ESCAPE_STEPS:g} steps of the plateau's reward)")
+                      f"{num(width)} up to {num(beta)} ({steps:g} steps of the plateau's reward)")
     why = (f"plateau: the held-out return is flat and the episodes settle at {band}; a bounded potential above "
            "the band turns it into a ramp (shaping outside the fitted reward, so it keeps its size)")
     params = {"new_factor": name, "type": "SHAPE", "feature": feature, "ramp_center": center, "ramp_width": width,
