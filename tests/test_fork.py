@@ -10,6 +10,7 @@ import pytest
 
 from mira.cli import main
 from mira.errors import UsageError
+from mira.explain import explain
 from mira.runio.csvlog import read_csv
 
 FAST_MIRA = ["--set", "mira.mcm.delta_t=400", "--set", "mira.holdout_episodes=1", "--set", "mira.mcm.k_warm=1",
@@ -98,6 +99,8 @@ def test_a_fork_installs_a_program_as_an_edit_and_a_resume_installs_it_again(par
     assert (edited / "programs" / "v001.diff").is_file() and not (plain / "programs" / "v001.json").exists()
     assert json.loads((edited / "config.json").read_text())["forked_from"]["program"]["factors"][-1]["type"] == "SHAPE"
     assert _evals(edited) != _evals(plain)  # the same run but for the potential's γΨ(s′) − Ψ(s)
+    story = explain(edited)
+    assert f"Forked from {parent.resolve()} at step 800" in story and f"installed program {escape.resolve()}" in story
 
     assert _fork(parent, again, "--seed", "4", "--method", "mira-no-srr", "--fork-program", str(escape)) == 0
     shutil.rmtree(again / "checkpoints")
@@ -138,4 +141,3 @@ def test_a_sweep_does_not_pass_fork_through(tmp_path: Path) -> None:
 
     with pytest.raises(UsageError, match="--fork"):
         check_train_args(["--fork", str(tmp_path)])
-    shutil.rmtree(tmp_path)

@@ -241,6 +241,12 @@ def explain(run_dir: str | Path) -> str:
         commit, _, digest = str(env["source"]).partition("+")
         lines.append(f"Code: mira {env.get('mira', '?')} at commit {commit[:12]}"
                      + (f", with uncommitted changes to src (diff digest {digest})." if digest else "."))
+    if fork := cfg_file.get("forked_from"):
+        installed = (f"; installed program {fork['program_file']} at the fork"
+                     if fork.get("program_file") else "")
+        lines.append(f"Forked from {fork.get('run')} at step {fork.get('step')} (its method {fork.get('method')}, "
+                     f"seed {fork.get('seed')}; checkpoint SHA-256 {str(fork.get('sha256'))[:12]}){installed}: its "
+                     "record before the step is the parent's.")
     for resumed in cfg_file.get("resumed_elsewhere") or []:
         lines.append(f"Resumed from step {resumed.get('step')} on another machine, software or source: "
                      + "; ".join(str(d) for d in resumed.get("drift") or []) + ".")
