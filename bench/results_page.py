@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import tomllib
 from collections.abc import Sequence
@@ -66,11 +67,26 @@ class Table:
     many of those its probation kept (the interventions' ``evidence.json`` and ``probation.json``)."""
 
 
+@dataclass
+class Pairs:
+    """A paired experiment: forks of the same checkpoints (``mira train --fork``), one arm per program installed
+    at the fork (the control installs none), the same fork seeds in every arm, on one machine."""
+
+    id: str
+    title: str
+    question: str
+    source: str
+    arms: list[tuple[str, str]]
+    """(program file stem without its ``_sN`` parent tag, title); the stem "" is the control, which installs none."""
+    command: str
+    text: str = ""
+
+
 class SpecError(ValueError):
     """The page spec is malformed; the message names the table and the key."""
 
 
-def load_spec(path: Path) -> tuple[dict[str, Any], list[Table]]:
+def load_spec(path: Path) -> tuple[dict[str, Any], list[Table | Pairs]]:
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, tomllib.TOMLDecodeError) as exc:
@@ -92,7 +108,17 @@ def load_spec(path: Path) -> tuple[dict[str, Any], list[Table]]:
                             raw["command"].strip(), raw.get("paper_ref", ""), dict(raw.get("paper", {})),
                             raw.get("text", "").strip(), list(raw.get("methods", [])),
                             dict(raw.get("titles", {})), raw.get("posture", ""), bool(raw.get("escapes", False))))
-    return {k: v for k, v in data.items() if k != "table"}, tables
+    for i, raw in enumerate(data.get("pairs", [])):
+        where = f"{path}: pairs {raw.get('id', i)!r}"
+        for key in ("id", "title", "question", "runs", "arms", "command"):
+            if key not in raw:
+                raise SpecError(f"{where}: missing key {key!r}")
+        if not (ROOT / raw["runs"]).exists():
+            raise SpecError(f"{where}: runs {raw['runs']!r} names no existing path")
+        tables.append(Pairs(raw["id"], raw["title"], raw["question"].strip(), raw["runs"],
+                            [(str(a), str(t)) for a, t in raw["arms"]], raw["command"].strip(),
+                            raw.get("text", "").strip()))
+    return {k: v for k, v in data.items() if k not in ("table", "pairs")}, tables
 
 
 # ---------------------------------------------------------------------------------------- reading
@@ -342,6 +368,59 @@ def plot(table: Table, rows: list[Row], path: Path) -> None:
                          method_titles={m: title_of(table, m) for m in methods}, methods=methods)
 
 
+def render_pairs(pairs: Pairs) -> list[str]:
+    """One row per parent checkpoint: each arm's final return (mean over its fork seeds) and each arm's
+    difference from the control in the same row; the last row: the means over parents."""
+    arms = {stem: [] for stem, _ in pairs.arms}
+    found: dict[tuple[str, int], dict[str, list[RunRecord]]] = {}
+    cpus, commits = set(), set()
+    for path in discover_runs([ROOT / pairs.source]):
+        saved = read_json(path / "config.json") or {}
+        fork = saved.get("forked_from") or {}
+        stem = re.sub(r"_s\d+$", "", Path(fork["program_file"]).stem) if fork.get("program_file") else ""
+        if not fork or stem not in arms:
+            continue
+        run = load_run(path)
+        parent = (f"{fork.get('method')} seed {fork.get('seed')}", int(fork.get("step", 0)))
+        found.setdefault(parent, {}).setdefault(stem, []).append(run)
+        cpus.add(str((saved.get("environment") or {}).get("cpu")))
+        commits.add(str((saved.get("environment") or {}).get("source"))[:7])
+    titles = [t for _, t in pairs.arms]
+    header = ["Parent (checkpoint)", "fork seeds", *[f"{t}" for t in titles],
+              *[f"{t} − {titles[0]}" for t in titles[1:]]]
+    body, deltas = [], {stem: [] for stem, _ in pairs.arms[1:]}
+    for (parent, step), by_arm in sorted(found.items()):
+        finals = {stem: [final_return(r, r.steps) for r in by_arm.get(stem, [])] for stem in arms}
+        for stem in arms:
+            arms[stem].extend(finals[stem])
+        control = sum(finals[""]) / len(finals[""]) if finals[""] else math.nan
+        cells = [f"{parent} at {_k(step)}", ", ".join(sorted({str(r.seed) for rs in by_arm.values() for r in rs}))]
+        cells += [fmt_return(sum(v) / len(v)) if v else "not run" for v in finals.values()]
+        for stem, _ in pairs.arms[1:]:
+            if finals[stem] and math.isfinite(control):
+                d = (sum(finals[stem]) / len(finals[stem]) - control) / abs(control)
+                deltas[stem].append(d)
+                cells.append(f"{100 * d:+.1f}%")
+            else:
+                cells.append("—")
+        body.append(cells)
+    if body:
+        cells = [f"over {len(body)} parents", ""] + [spread(v) if v else "—" for v in arms.values()]
+        cells += [(f"{100 * sum(d) / len(d):+.1f}% [{100 * min(d):+.1f}%, {100 * max(d):+.1f}%]" if d else "—")
+                  for d in deltas.values()]
+        body.append(cells)
+    out = [f"## {pairs.title}", "", pairs.question, "",
+           "Cells: final return (mean evaluation return over the final 10% of each fork's budget), and each arm "
+           "against the control forked from the same checkpoint with the same seed.", "",
+           md_table(header, body) if body else "No runs archived yet.", ""]
+    if pairs.text:
+        out += [pairs.text, ""]
+    out += [f"Made by: `{pairs.command}`", "",
+            f"Commits: {', '.join(f'`{c}`' for c in sorted(commits))}. CPU: {', '.join(sorted(cpus))}." if body
+            else "", ""]
+    return out
+
+
 def speed_block(page: Path) -> str:
     """The throughput table ``bench/throughput.py`` last wrote into the page, markers included."""
     text = page.read_text(encoding="utf-8") if page.exists() else ""
@@ -350,9 +429,12 @@ def speed_block(page: Path) -> str:
     return f"{SPEED_BEGIN}\n(no measurement yet: python bench/throughput.py)\n{SPEED_END}"
 
 
-def render(meta: dict[str, Any], tables: list[Table], *, figures: Path | None, speed: str = "") -> str:
+def render(meta: dict[str, Any], tables: list[Table | Pairs], *, figures: Path | None, speed: str = "") -> str:
     out = [meta.get("intro", "# Results").strip(), ""]
     for table in tables:
+        if isinstance(table, Pairs):
+            out += render_pairs(table)
+            continue
         rows, notes = collect(table)
         counts = [len(r.runs) for r in rows]
         wide = len({r.program for r in rows}) > 1

@@ -199,3 +199,47 @@ def test_the_paper_rows_no_run_answers_are_listed_as_not_run(
     mira, lare = "| MIRA | not run yet | — | — | — | 120 |", "| LaRe | not run yet | — | — | — | 90 |"
     assert mira in lines and lare in lines
     assert next(i for i, x in enumerate(lines) if x.startswith("| Dense")) < lines.index(mira)
+
+
+def _fork(root: Path, name: str, parent_seed: int, program: str | None, finals: tuple[float, float]) -> None:
+    run = root / name
+    run.mkdir(parents=True)
+    config = {"task": "halfcheetah", "method": "mira-no-srr", "algo": "sac", "seed": 11, "steps": 30_000,
+              "program": None}
+    fork = {"run": f"/runs/parent{parent_seed}", "step": 10_000, "seed": parent_seed, "method": "mira-no-mcm",
+            **({"program_file": f"/forks/{program}_s{parent_seed}.json"} if program else {})}
+    (run / "config.json").write_text(json.dumps({"config": config, "forked_from": fork,
+                                                 "environment": {"source": "abc1234def", "cpu": "Test CPU"}}))
+    (run / "eval.csv").write_text("step,return_mean\n" + f"20000,{finals[0]}\n30000,{finals[1]}\n")
+
+
+def test_paired_forks_are_read_against_the_control_of_their_own_checkpoint(
+        tmp_path: Path, load_bench: Callable[[str], ModuleType]) -> None:
+    page = load_bench("results_page")
+    forks = tmp_path / "forks"
+    _fork(forks, "p0_none", 0, None, (90.0, 100.0))
+    _fork(forks, "p0_escape", 0, "escape20", (0.0, 110.0))
+    _fork(forks, "p1_none", 1, None, (0.0, 200.0))
+    _fork(forks, "p1_escape", 1, "escape20", (0.0, 190.0))
+    spec = tmp_path / "results.toml"
+    spec.write_text(f'''intro = "# Results"
+[[pairs]]
+id = "p"
+title = "Paired forks"
+question = "Does the edit pay?"
+runs = "{forks}"
+arms = [["", "no edit"], ["escape20", "escape"]]
+command = "mira train --fork ..."
+''')
+    meta, tables = page.load_spec(spec)
+
+    lines = page.render(meta, tables, figures=None).splitlines()
+
+    header = next(line for line in lines if line.startswith("| Parent"))
+    assert "| no edit | escape | escape − no edit |" in header
+    p0 = next(line for line in lines if line.startswith("| mira-no-mcm seed 0 at 10k"))
+    assert "| 100.0 | 110.0 | +10.0% |" in p0  # the final 10% of 30k: the evaluation at 30k
+    p1 = next(line for line in lines if line.startswith("| mira-no-mcm seed 1 at 10k"))
+    assert "| 200.0 | 190.0 | -5.0% |" in p1
+    means = next(line for line in lines if line.startswith("| over 2 parents"))
+    assert "+2.5% [-5.0%, +10.0%]" in means
