@@ -65,7 +65,8 @@ def check_program_file(
             return 1
         print(
             f"ok: {len(program.factors)} factor(s) admissible for {card.name} "
-            f"({len(program.phi_factors)} PHI, {len(program.aux_factors)} AUX); sandbox on "
+            f"({len(program.phi_factors)} PHI, {len(program.aux_factors)} AUX"
+            + (f", {len(program.shape_factors)} SHAPE" if program.shape_factors else "") + "); sandbox on "
             f"{report.batch_size} real states in {report.wall_seconds:.1f} s",
             file=stream,
         )
