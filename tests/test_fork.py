@@ -128,10 +128,16 @@ def test_a_fork_that_cannot_continue_its_parent_is_refused(parent: Path, tmp_pat
 
 
 def test_a_fork_of_a_directory_without_a_run_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["train", "--fork", str(tmp_path), "--out", str(tmp_path / "fork")]) == 2
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["train", "--fork", str(empty), "--out", str(tmp_path / "fork")]) == 2
     assert "not a usable run directory" in capsys.readouterr().err
     assert main(["train", "--fork", str(tmp_path)]) == 2
     assert "give it --out DIR" in capsys.readouterr().err
+    for out in (empty, empty / "inside", tmp_path):
+        assert main(["train", "--fork", str(empty), "--out", str(out), "--overwrite"]) == 2
+        assert "cannot be the parent's, inside it or around it" in capsys.readouterr().err
+    assert empty.is_dir()
     assert main(["train", "--fork-program", str(tmp_path / "p.json"), "--out", str(tmp_path / "x")]) == 2
     assert "give --fork RUN_DIR too" in capsys.readouterr().err
 

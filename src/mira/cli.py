@@ -210,6 +210,10 @@ def prepare_fork(args: argparse.Namespace) -> tuple[Path, TrainConfig, dict[str,
     parent = Path(args.fork)
     if args.resume or args.out is None:
         raise UsageError("--fork RUN_DIR starts a new run: give it --out DIR (and no --resume)")
+    out, source = Path(args.out).resolve(), parent.resolve()
+    if out == source or out in source.parents or source in out.parents:
+        raise UsageError(f"--fork {parent} --out {args.out}: the fork's directory cannot be the parent's, inside "
+                         "it or around it")
     defaults = train_parser().parse_args([])
     fixed = [f"--{name.replace('_', '-')}" for name in FORK_FIXED if getattr(args, name) != getattr(defaults, name)]
     fixed += [f"--set {a}" for a in args.overrides if not a.split("=", 1)[0].strip().startswith(FORK_SETTABLE)]
