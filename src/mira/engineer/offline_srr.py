@@ -333,9 +333,8 @@ def add_escape_bonus(ev: RequestContext, why: str) -> tuple[dict, list[dict]] | 
 
 
 def add_escape_potential(ev: RequestContext, steps: float = ESCAPE_STEPS) -> tuple[dict, list[dict]] | None:
-    """A SHAPE factor Ψ(s) = β · σ((z − c) / w), written with tanh: about 0 in the band where the episodes settle,
-    rising over a ramp of width w (:data:`ESCAPE_RAMP_SHARE`) centred one w above it (c = center + w), bounded by
-    β = ``steps`` of the plateau's reward per step."""
+    """A SHAPE factor Ψ(s) = β · σ((z − c) / w), written with tanh: about 0 in the band the episodes settle in,
+    rising over a ramp of width w (:data:`ESCAPE_RAMP_SHARE`) centred at c = center + w, bounded by β (``steps``)."""
     if (p := ev.plateau) is None:
         return None
     feature, (lo, hi) = str(p["feature"]), p["visited"]

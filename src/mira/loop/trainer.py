@@ -362,7 +362,8 @@ class Trainer:
         if rng.get("cuda") is not None and torch.cuda.is_available():
             torch.cuda.set_rng_state_all(rng["cuda"])
         if step == self.setup.fork_step:
-            self._reseed(step)
+            self.rng, env_seed = _fork_streams(self.setup.config.seed, step)
+            self._obs, _ = self.env.reset(seed=env_seed)
             for hook in self.setup.hooks:
                 hook.on_fork(self.run_dir, self.setup.fork_program)
         else:
@@ -382,18 +383,19 @@ class Trainer:
         return True
 
 
-    def _reseed(self, step: int) -> None:
-        """A fork's start: every random stream of the loop (actions, replay sampling, the environment) drawn
-        from the fork's seed and the step, so that forks of one checkpoint with different seeds part at once
-        and a fork resumed before its first checkpoint repeats itself."""
-        streams = np.random.SeedSequence([self.setup.config.seed, step])
-        python_seed, torch_seed, env_seed = (int(x) for x in streams.generate_state(3))
-        random.seed(python_seed)
-        np.random.seed(python_seed)
-        torch.manual_seed(torch_seed)
-        self.rng = np.random.default_rng(streams.spawn(1)[0])
-        self._obs, _ = self.env.reset(seed=env_seed)
-        log.info("fork: reseeded from seed %d at step %d", self.setup.config.seed, step)
+
+
+def _fork_streams(seed: int, step: int) -> tuple[np.random.Generator, int]:
+    """A fork's start: every random stream of the loop drawn afresh from its seed and the step (Python's,
+    NumPy's and torch's global ones here; the replay sampler and the environment's seed returned), so that
+    forks of one checkpoint with different seeds part at once and a fork resumed before its first
+    checkpoint repeats itself."""
+    streams = np.random.SeedSequence([seed, step])
+    python_seed, torch_seed, env_seed = (int(x) for x in streams.generate_state(3))
+    random.seed(python_seed)
+    np.random.seed(python_seed)
+    torch.manual_seed(torch_seed)
+    return np.random.default_rng(streams.spawn(1)[0]), env_seed
 
 
 def _seed_everything(seed: int) -> None:

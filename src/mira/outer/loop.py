@@ -243,12 +243,11 @@ class MiraOuterLoop:
             self._record(ctx, "escape_kept", median=after, before=escape["plateau_median"], rise=rise)
             return
         old = self.program
-        self.program = old.with_factors([f for f in old.factors if f.name not in escape["factors"]],
-                                        version=old.version + 1, parent_version=old.version, edits=(),
-                                        rationale=f"rolled back {', '.join(escape['factors'])}: the escape did not "
-                                        f"pay within {self.config.mcm.k_cool} cycles ({100 * rise:+.1f}%)", diff="")
-        save_program_version(ctx.run.programs, old, self.program)
-        self.hars.set_program(ProgramFactorSource(self.program, self.card))
+        self._switch(ctx.run, old.with_factors([f for f in old.factors if f.name not in escape["factors"]],
+                                               version=old.version + 1, parent_version=old.version, edits=(),
+                                               rationale=f"rolled back {', '.join(escape['factors'])}: the escape "
+                                               f"did not pay within {self.config.mcm.k_cool} cycles "
+                                               f"({100 * rise:+.1f}%)", diff=""))
         assert self.plateau is not None
         self.plateau.reset()
         log.info("step %d: the escape did not pay (held-out return %+.1f%% over the plateau): rolled back to "
@@ -302,11 +301,7 @@ class MiraOuterLoop:
         self.structural.rest()
         if decision.accepted:
             old = self.program
-            self.program = decision.program
-            save_program_version(ctx.run.programs, old, self.program)
-            failpoint("program.saved")
-            self.hars.set_program(ProgramFactorSource(self.program, self.card))
-            failpoint("program.applied")
+            self._switch(ctx.run, decision.program)
             self.monitor.on_edit_accepted()
             self.pending_observation = {"operators": decision.operators, "d_before": result.d.tolist(),
                                         "due_cycle": self.cycle + self.config.mcm.k_cool}
@@ -338,39 +333,33 @@ class MiraOuterLoop:
                                   self.structural.triggered)
 
     # ------------------------------------------------------------------------------------- checkpoint
+    def _switch(self, run: RunDir, new: FactorProgram) -> None:
+        """Make ``new`` the program in force: its version saved with the diff, then the shaping switched to it."""
+        old, self.program = self.program, new
+        save_program_version(run.programs, old, new)
+        failpoint("program.saved")
+        self.hars.set_program(ProgramFactorSource(new, self.card))
+        failpoint("program.applied")
+
     def on_fork(self, run: RunDir, program: Any | None) -> None:
-        """Install ``program`` (``mira train --fork-program``) as an accepted edit is installed: the next
-        version, saved with its diff, the shaping switched to it."""
-        if program is None:
-            return
-        old = self.program
-        self.program = program.with_factors(list(program.factors), version=old.version + 1,
-                                            parent_version=old.version, edits=(), diff="",
-                                            rationale=f"installed at the fork: {program.rationale}".strip())
-        save_program_version(run.programs, old, self.program)
-        self.hars.set_program(ProgramFactorSource(self.program, self.card))
-        log.info("fork: program v%d installed (%s)", self.program.version,
-                 ", ".join(f.name for f in self.program.factors))
+        """Install ``program`` (``mira train --fork-program``) as the next version, as an accepted edit is."""
+        if program is not None:
+            v = self.program.version
+            self._switch(run, program.with_factors(program.factors, version=v + 1, parent_version=v, edits=(),
+                                                   diff="", rationale=f"installed at the fork: {program.rationale}"))
+            log.info("fork: program v%d installed (%s)", v + 1, ", ".join(f.name for f in program.factors))
 
     def state_dict(self) -> dict[str, Any]:
-        return {
-            "cycle": self.cycle,
-            "interventions": self.interventions,
-            "program": self.program.to_json(),
-            "monitor": self.monitor.state_dict(),
-            "structural": self.structural.state_dict(),
-            "surrogate": self.surrogate.state_dict(),
-            "prev_actor": self.prev_actor,
-            "pending": self.pending_observation,
-            "llm": backend_state_dict(self.backend) if self.backend is not None else {},
-            "refused": self.reframer.refused if self.reframer is not None else [],
-            "plateau": None if self.plateau is None else self.plateau.state_dict(),
-            "escape": self.escape,
-        }
+        return {"cycle": self.cycle, "interventions": self.interventions, "program": self.program.to_json(),
+                "monitor": self.monitor.state_dict(), "structural": self.structural.state_dict(),
+                "surrogate": self.surrogate.state_dict(), "prev_actor": self.prev_actor,
+                "pending": self.pending_observation,
+                "llm": backend_state_dict(self.backend) if self.backend is not None else {},
+                "refused": self.reframer.refused if self.reframer is not None else [],
+                "plateau": None if self.plateau is None else self.plateau.state_dict(), "escape": self.escape}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.cycle = state["cycle"]
-        self.interventions = state["interventions"]
+        self.cycle, self.interventions = state["cycle"], state["interventions"]
         self.program = FactorProgram.from_json(state["program"])
         self.monitor.load_state_dict(state["monitor"])
         self.structural.load_state_dict(state.get("structural", {}))
