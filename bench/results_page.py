@@ -94,6 +94,9 @@ def load_spec(path: Path) -> tuple[dict[str, Any], list[Table | Pairs]]:
     tables = []
     for i, raw in enumerate(data.get("table", [])):
         where = f"{path}: table {raw.get('id', i)!r}"
+        if raw.get("kind") == "pairs":
+            tables.append(load_pairs(raw, where))
+            continue
         for key in ("id", "title", "question", "budgets", "runs", "command"):
             if key not in raw:
                 raise SpecError(f"{where}: missing key {key!r}")
@@ -108,17 +111,18 @@ def load_spec(path: Path) -> tuple[dict[str, Any], list[Table | Pairs]]:
                             raw["command"].strip(), raw.get("paper_ref", ""), dict(raw.get("paper", {})),
                             raw.get("text", "").strip(), list(raw.get("methods", [])),
                             dict(raw.get("titles", {})), raw.get("posture", ""), bool(raw.get("escapes", False))))
-    for i, raw in enumerate(data.get("pairs", [])):
-        where = f"{path}: pairs {raw.get('id', i)!r}"
-        for key in ("id", "title", "question", "runs", "arms", "command"):
-            if key not in raw:
-                raise SpecError(f"{where}: missing key {key!r}")
-        if not (ROOT / raw["runs"]).exists():
-            raise SpecError(f"{where}: runs {raw['runs']!r} names no existing path")
-        tables.append(Pairs(raw["id"], raw["title"], raw["question"].strip(), raw["runs"],
-                            [(str(a), str(t)) for a, t in raw["arms"]], raw["command"].strip(),
-                            raw.get("text", "").strip()))
-    return {k: v for k, v in data.items() if k not in ("table", "pairs")}, tables
+    return {k: v for k, v in data.items() if k != "table"}, tables
+
+
+def load_pairs(raw: dict[str, Any], where: str) -> Pairs:
+    """A ``[[table]]`` with ``kind = "pairs"``: ``runs`` is one folder of forks, ``arms`` its [stem, title] pairs."""
+    for key in ("id", "title", "question", "runs", "arms", "command"):
+        if key not in raw:
+            raise SpecError(f"{where}: missing key {key!r}")
+    if not isinstance(raw["runs"], str) or not (ROOT / raw["runs"]).exists():
+        raise SpecError(f"{where}: runs {raw['runs']!r} names no existing path")
+    return Pairs(raw["id"], raw["title"], raw["question"].strip(), raw["runs"],
+                 [(str(a), str(t)) for a, t in raw["arms"]], raw["command"].strip(), raw.get("text", "").strip())
 
 
 # ---------------------------------------------------------------------------------------- reading
@@ -381,13 +385,14 @@ def render_pairs(pairs: Pairs) -> list[str]:
         if not fork or stem not in arms:
             continue
         run = load_run(path)
+        if run.final_step < run.steps:  # still training, or stopped: its final window is not there yet
+            continue
         parent = (f"{fork.get('method')} seed {fork.get('seed')}", int(fork.get("step", 0)))
         found.setdefault(parent, {}).setdefault(stem, []).append(run)
         cpus.add(str((saved.get("environment") or {}).get("cpu")))
         commits.add(str((saved.get("environment") or {}).get("source"))[:7])
     titles = [t for _, t in pairs.arms]
-    header = ["Parent (checkpoint)", "fork seeds", *[f"{t}" for t in titles],
-              *[f"{t} − {titles[0]}" for t in titles[1:]]]
+    header = ["Parent (checkpoint)", "fork seeds", *titles, *[f"{t} vs control" for t in titles[1:]]]
     body, deltas = [], {stem: [] for stem, _ in pairs.arms[1:]}
     for (parent, step), by_arm in sorted(found.items()):
         finals = {stem: [final_return(r, r.steps) for r in by_arm.get(stem, [])] for stem in arms}
@@ -405,14 +410,15 @@ def render_pairs(pairs: Pairs) -> list[str]:
                 cells.append("—")
         body.append(cells)
     if body:
-        cells = [f"over {len(body)} parents", ""] + [spread(v) if v else "—" for v in arms.values()]
+        cells = [f"over {len(body)} parent{'s' if len(body) > 1 else ''}", ""]
+        cells += [spread(v) if v else "—" for v in arms.values()]
         cells += [(f"{100 * sum(d) / len(d):+.1f}% [{100 * min(d):+.1f}%, {100 * max(d):+.1f}%]" if d else "—")
                   for d in deltas.values()]
         body.append(cells)
     out = [f"## {pairs.title}", "", pairs.question, "",
            "Cells: final return (mean evaluation return over the final 10% of each fork's budget), and each arm "
            "against the control forked from the same checkpoint with the same seed.", "",
-           md_table(header, body) if body else "No runs archived yet.", ""]
+           md_table(header, body).rstrip("\n") if body else "No runs archived yet.", ""]
     if pairs.text:
         out += [pairs.text, ""]
     out += [f"Made by: `{pairs.command}`", "",

@@ -223,7 +223,8 @@ def test_paired_forks_are_read_against_the_control_of_their_own_checkpoint(
     _fork(forks, "p1_escape", 1, "escape20", (0.0, 190.0))
     spec = tmp_path / "results.toml"
     spec.write_text(f'''intro = "# Results"
-[[pairs]]
+[[table]]
+kind = "pairs"
 id = "p"
 title = "Paired forks"
 question = "Does the edit pay?"
@@ -236,7 +237,7 @@ command = "mira train --fork ..."
     lines = page.render(meta, tables, figures=None).splitlines()
 
     header = next(line for line in lines if line.startswith("| Parent"))
-    assert "| no edit | escape | escape − no edit |" in header
+    assert "| no edit | escape | escape vs control |" in header
     p0 = next(line for line in lines if line.startswith("| mira-no-mcm seed 0 at 10k"))
     assert "| 100.0 | 110.0 | +10.0% |" in p0  # the final 10% of 30k: the evaluation at 30k
     p1 = next(line for line in lines if line.startswith("| mira-no-mcm seed 1 at 10k"))
