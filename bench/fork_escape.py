@@ -68,6 +68,9 @@ def main() -> None:
     p.add_argument("run", type=Path, help="a run directory with a checkpoint at --step")
     p.add_argument("--step", type=int, required=True, help="the checkpoint to fork from")
     p.add_argument("--out", type=Path, required=True, help="the program file to write")
+    p.add_argument("--from-band", action="store_true",
+                   help="a variant: Ψ = β·max(0, tanh((z − center)/w)), zero on and below the band (the engineer's "
+                        "ramp is about 0.27β there, which shifts the critic's values of the states the policy visits)")
     p.add_argument("--reward-steps", type=float, default=ESCAPE_STEPS,
                    help=f"the potential's height in steps of the plateau's reward (default {ESCAPE_STEPS:g}, "
                         "the offline engineer's)")
@@ -78,6 +81,15 @@ def main() -> None:
     made = add_escape_potential(ev, steps=args.reward_steps)  # type: ignore[arg-type]
     assert made is not None
     edit, factors = made
+    if args.from_band:
+        params = edit["params"]
+        name, feature, width, beta = params["new_factor"], params["feature"], params["ramp_width"], params["height"]
+        code = (f"def {name}(s):\n    return {beta:.6f} * np.maximum(0.0, np.tanh((s.{feature} - "
+                f"{report['center']:.6f}) / {width:.6f}))\n")
+        factors[-1] = {**factors[-1], "code": code,
+                       "doc": f"escape potential from the band {feature} = {report['center']:.6g} up: 0 on and below "
+                              f"it, rising over {width:.6g} to {beta:.6g}"}
+        params["code"], params["form"] = code, "from the band"
     out = program.to_json()
     out.update(factors=factors, version=0, parent_version=None, edits=[], diff="",
                rationale=f"{edit['justification']} ({args.reward_steps:g} steps of the plateau's reward)")
