@@ -333,8 +333,8 @@ def add_escape_bonus(ev: RequestContext, why: str) -> tuple[dict, list[dict]] | 
 
 
 def add_escape_potential(ev: RequestContext, steps: float = ESCAPE_STEPS) -> tuple[dict, list[dict]] | None:
-    """A SHAPE factor Ψ(s) = β · σ((z − c) / w), written with tanh: about 0 in the band the episodes settle in,
-    rising over a ramp of width w (:data:`ESCAPE_RAMP_SHARE`) centred at c = center + w, bounded by β (``steps``)."""
+    """A SHAPE factor Ψ(s) = β · σ((z − c) / w), written with tanh, centred at c = center + w above the band the
+    episodes settle in (where Ψ is already 0.27β), rising over a ramp of width w (:data:`ESCAPE_RAMP_SHARE`) to β."""
     if (p := ev.plateau) is None:
         return None
     feature, (lo, hi) = str(p["feature"]), p["visited"]
