@@ -397,10 +397,11 @@ def render_pairs(pairs: Pairs) -> list[str]:
     for (parent, step), by_arm in sorted(found.items()):
         finals = {stem: [final_return(r, r.steps) for r in by_arm.get(stem, [])] for stem in arms}
         for stem in arms:
-            arms[stem].extend(finals[stem])
+            if finals[""]:  # the means compare arms over the same parents: those with a control
+                arms[stem].extend(finals[stem])
         control = sum(finals[""]) / len(finals[""]) if finals[""] else math.nan
         cells = [f"{parent} at {_k(step)}", ", ".join(sorted({str(r.seed) for rs in by_arm.values() for r in rs}))]
-        cells += [fmt_return(sum(v) / len(v)) if v else "not run" for v in finals.values()]
+        cells += [fmt_return(sum(v) / len(v)) if v else "—" for v in finals.values()]
         for stem, _ in pairs.arms[1:]:
             if finals[stem] and math.isfinite(control):
                 d = (sum(finals[stem]) / len(finals[stem]) - control) / abs(control)
@@ -410,7 +411,8 @@ def render_pairs(pairs: Pairs) -> list[str]:
                 cells.append("—")
         body.append(cells)
     if body:
-        cells = [f"over {len(body)} parent{'s' if len(body) > 1 else ''}", ""]
+        paired = sum(1 for by_arm in found.values() if any(r.steps for r in by_arm.get("", [])))
+        cells = [f"over the {paired} parent{'s' if paired != 1 else ''} with a control", ""]
         cells += [spread(v) if v else "—" for v in arms.values()]
         cells += [(f"{100 * sum(d) / len(d):+.1f}% [{100 * min(d):+.1f}%, {100 * max(d):+.1f}%]" if d else "—")
                   for d in deltas.values()]

@@ -242,5 +242,5 @@ command = "mira train --fork ..."
     assert "| 100.0 | 110.0 | +10.0% |" in p0  # the final 10% of 30k: the evaluation at 30k
     p1 = next(line for line in lines if line.startswith("| mira-no-mcm seed 1 at 10k"))
     assert "| 200.0 | 190.0 | -5.0% |" in p1
-    means = next(line for line in lines if line.startswith("| over 2 parents"))
+    means = next(line for line in lines if line.startswith("| over the 2 parents with a control"))
     assert "+2.5% [-5.0%, +10.0%]" in means
