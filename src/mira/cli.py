@@ -203,6 +203,7 @@ def prepare_fork(args: argparse.Namespace) -> tuple[Path, TrainConfig, dict[str,
     """``--fork PARENT --out DIR``: the fork's directory (:mod:`mira.runio.fork`), its configuration (the
     parent's with the fork's changes) and its ``forked_from`` record for ``config.json``."""
     from mira.methods import fork_compatible
+    from mira.runio.checkpoint import checkpoint_files
     from mira.runio.fork import copy_fork_files, fork_checkpoint, program_version_at
     from mira.runio.rundir import prepare_run_dir
     from mira.train_cli import train_parser
@@ -248,7 +249,7 @@ def prepare_fork(args: argparse.Namespace) -> tuple[Path, TrainConfig, dict[str,
     except OSError as exc:
         shutil.rmtree(path, ignore_errors=True)
         raise UsageError(f"--fork {parent}: cannot copy its checkpoint to {path} ({exc})") from exc
-    manifest = json.loads((path / "checkpoints" / f"ckpt-{step:010d}.json").read_text(encoding="utf-8"))
+    manifest = json.loads(checkpoint_files(path / "checkpoints", step)[1].read_text(encoding="utf-8"))
     forked_from = {"run": str(parent.resolve()), "step": step, "sha256": manifest["sha256"],
                    "seed": saved["config"].get("seed"), "method": saved["config"].get("method"),
                    "source": (saved.get("environment") or {}).get("source")}

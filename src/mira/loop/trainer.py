@@ -383,8 +383,6 @@ class Trainer:
         return True
 
 
-
-
 def _fork_streams(seed: int, step: int) -> tuple[np.random.Generator, int]:
     """A fork's start: every random stream of the loop drawn afresh from its seed and the step (Python's,
     NumPy's and torch's global ones here; the replay sampler and the environment's seed returned), so that

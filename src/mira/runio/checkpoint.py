@@ -35,6 +35,11 @@ def _manifest_path(directory: Path, step: int) -> Path:
     return directory / f"{_PREFIX}{step:010d}.json"
 
 
+def checkpoint_files(directory: str | os.PathLike[str], step: int) -> tuple[Path, Path]:
+    """The payload and the manifest of the checkpoint of ``step`` in ``directory``."""
+    return _payload_path(Path(directory), step), _manifest_path(Path(directory), step)
+
+
 def save_checkpoint(directory: str | os.PathLike[str], step: int, state: dict[str, Any], keep: int = 2) -> Path:
     """Write a verified checkpoint for ``step`` and prune all but the newest ``keep``."""
     root = Path(directory)

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from mira.errors import CheckpointError, UsageError
-from mira.runio.checkpoint import list_checkpoints, load_checkpoint
+from mira.runio.checkpoint import checkpoint_files, list_checkpoints, load_checkpoint
 
 _VERSION_FILE = re.compile(r"v(\d{3,})\.(json|diff)")
 
@@ -53,9 +53,8 @@ def copy_fork_files(parent: Path, step: int, out: Path, program_version: int | N
     """Into the (empty) run directory ``out``: the checkpoint of ``step``, the program versions up to
     ``program_version`` (all when None) and the LLM response cache."""
     (out / "checkpoints").mkdir(parents=True)
-    for suffix in (".pt", ".json"):
-        name = f"ckpt-{step:010d}{suffix}"
-        shutil.copy2(parent / "checkpoints" / name, out / "checkpoints" / name)
+    for src in checkpoint_files(parent / "checkpoints", step):
+        shutil.copy2(src, out / "checkpoints" / src.name)
     programs = parent / "programs"
     if programs.is_dir():
         (out / "programs").mkdir()
