@@ -110,6 +110,20 @@ def test_a_fork_installs_a_program_as_an_edit_and_a_resume_installs_it_again(par
     assert _evals(again) == _evals(edited)
 
 
+@pytest.mark.slow
+def test_a_fork_may_keep_the_policy_more_random(parent: Path, tmp_path: Path) -> None:
+    """SAC's target entropy decides no network, so a fork may raise it: an exploration edit at a checkpoint."""
+    plain, explore = tmp_path / "plain", tmp_path / "explore"
+    assert _fork(parent, plain, "--seed", "4") == 0
+    assert _fork(parent, explore, "--seed", "4", "--set", "agent.target_entropy=0") == 0
+    assert json.loads((explore / "config.json").read_text())["config"]["agent"]["target_entropy"] == 0.0
+    alphas = {name: [float(r["alpha"]) for r in read_csv(run / "train.csv")] for name, run in
+              (("plain", plain), ("explore", explore))}
+    # Above its target of -|A| the temperature falls; towards 0 nats it rises from the same checkpoint.
+    assert alphas["explore"][-1] > alphas["plain"][-1]
+    assert _evals(explore) != _evals(plain)
+
+
 @pytest.mark.parametrize(("extra", "message"), [
     (["--lr", "1e-3"], "--lr cannot change"),
     (["--set", "agent.tau=0.01"], "--set agent.tau=0.01 cannot change"),

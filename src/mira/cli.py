@@ -195,8 +195,9 @@ FORK_FIXED = ("task", "algo", "learning_starts", "buffer_size", "batch_size", "l
               "eval_episodes", "checkpoint_every", "log_every", "max_episode_steps", "program")
 """Flags a fork cannot change: they decide what the checkpoint holds (networks, buffer, program v0) or how the
 run is measured, so a fork with them changed could not load the checkpoint or be compared with its parent."""
-FORK_SETTABLE = ("mira.", "llm.", "hars.")
-"""The ``--set`` sections a fork may change: the outer loop, the reward engineer and the shaping."""
+FORK_SETTABLE = ("mira.", "llm.", "hars.", "agent.target_entropy")
+"""The ``--set`` sections (and fields) a fork may change: the outer loop, the reward engineer, the shaping
+and SAC's target entropy (how random the policy is kept: an exploration setting, not a network's shape)."""
 
 
 def prepare_fork(args: argparse.Namespace) -> tuple[Path, TrainConfig, dict[str, Any]]:
@@ -219,9 +220,10 @@ def prepare_fork(args: argparse.Namespace) -> tuple[Path, TrainConfig, dict[str,
     fixed = [f"--{name.replace('_', '-')}" for name in FORK_FIXED if getattr(args, name) != getattr(defaults, name)]
     fixed += [f"--set {a}" for a in args.overrides if not a.split("=", 1)[0].strip().startswith(FORK_SETTABLE)]
     if fixed:
+        settable = ", ".join(p + "*" if p.endswith(".") else p for p in FORK_SETTABLE)
         raise UsageError(f"--fork {parent}: a fork continues its parent's networks, buffer and evaluations, so "
                          f"{', '.join(fixed)} cannot change; it takes --seed, --steps, --method, the LLM flags, "
-                         f"--threads, --device and --set {'/'.join(p + '*' for p in FORK_SETTABLE)}")
+                         f"--threads, --device and --set {settable}")
     try:
         saved = json.loads((parent / "config.json").read_text(encoding="utf-8"))
         cfg: TrainConfig = from_dict(TrainConfig, drop_removed_fields(saved["config"], f"--fork {parent}: config.json"))

@@ -29,7 +29,10 @@ class AgentConfig:
     init_alpha: float = 1.0
     """SAC: initial entropy temperature."""
     autotune_alpha: bool = True
-    """SAC: learn the temperature towards a target entropy of -|A|."""
+    """SAC: learn the temperature towards ``target_entropy``."""
+    target_entropy: float | None = None
+    """SAC: the policy entropy (nats) the temperature is tuned towards; None: -|A|, SB3's and CleanRL's
+    ``auto``. Higher keeps the policy more random for longer (a fork may change it: it decides no network)."""
     exploration_noise: float = 0.1
     """DDPG: std of the Gaussian action noise (actions in [-1, 1])."""
     kernels: str = "fused"

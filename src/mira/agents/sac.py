@@ -52,7 +52,7 @@ class SAC:
         self.critic = EnsembleQ(2, obs_dim, act_dim, config.hidden).to(device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.log_alpha = torch.tensor(math.log(config.init_alpha), device=device, requires_grad=True)
-        self.target_entropy = -float(act_dim)
+        self.target_entropy = -float(act_dim) if config.target_entropy is None else float(config.target_entropy)
         self.actor_opt = make_adam(list(self.actor.parameters()), config.lr)
         self.critic_opt = make_adam(list(self.critic.parameters()), config.lr)
         self.alpha_opt = make_adam([self.log_alpha], config.lr)
