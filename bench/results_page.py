@@ -77,7 +77,8 @@ class Pairs:
     question: str
     source: str
     arms: list[tuple[str, str]]
-    """(program file stem without its ``_sN`` parent tag, title); the stem "" is the control, which installs none."""
+    """(arm, title): the arm is the installed program's file stem without its ``_sN`` parent tag and the fork's
+    ``--set`` settings, joined by "+" (``agent.target_entropy=0``); the arm "" is the control, which changes nothing."""
     command: str
     text: str = ""
 
@@ -381,7 +382,8 @@ def render_pairs(pairs: Pairs) -> list[str]:
     for path in discover_runs([ROOT / pairs.source]):
         saved = read_json(path / "config.json") or {}
         fork = saved.get("forked_from") or {}
-        stem = re.sub(r"_s\d+$", "", Path(fork["program_file"]).stem) if fork.get("program_file") else ""
+        program = [re.sub(r"_s\d+$", "", Path(fork["program_file"]).stem)] if fork.get("program_file") else []
+        stem = "+".join([*program, *(fork.get("settings") or [])])
         if not fork or stem not in arms:
             continue
         run = load_run(path)

@@ -116,7 +116,10 @@ def test_a_fork_may_keep_the_policy_more_random(parent: Path, tmp_path: Path) ->
     plain, explore = tmp_path / "plain", tmp_path / "explore"
     assert _fork(parent, plain, "--seed", "4") == 0
     assert _fork(parent, explore, "--seed", "4", "--set", "agent.target_entropy=0") == 0
-    assert json.loads((explore / "config.json").read_text())["config"]["agent"]["target_entropy"] == 0.0
+    saved = json.loads((explore / "config.json").read_text())
+    assert saved["config"]["agent"]["target_entropy"] == 0.0
+    assert saved["forked_from"]["settings"] == ["agent.target_entropy=0"]  # the arm, for the pairs table
+    assert "--set agent.target_entropy=0" in explain(explore)
     alphas = {name: [float(r["alpha"]) for r in read_csv(run / "train.csv")] for name, run in
               (("plain", plain), ("explore", explore))}
     # Above its target of -|A| the temperature falls; towards 0 nats it rises from the same checkpoint.

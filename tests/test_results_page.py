@@ -201,13 +201,15 @@ def test_the_paper_rows_no_run_answers_are_listed_as_not_run(
     assert next(i for i, x in enumerate(lines) if x.startswith("| Dense")) < lines.index(mira)
 
 
-def _fork(root: Path, name: str, parent_seed: int, program: str | None, finals: tuple[float, float]) -> None:
+def _fork(root: Path, name: str, parent_seed: int, program: str | None, finals: tuple[float, float],
+          settings: tuple[str, ...] = ()) -> None:
     run = root / name
     run.mkdir(parents=True)
     config = {"task": "halfcheetah", "method": "mira-no-srr", "algo": "sac", "seed": 11, "steps": 30_000,
               "program": None}
     fork = {"run": f"/runs/parent{parent_seed}", "step": 10_000, "seed": parent_seed, "method": "mira-no-mcm",
-            **({"program_file": f"/forks/{program}_s{parent_seed}.json"} if program else {})}
+            **({"program_file": f"/forks/{program}_s{parent_seed}.json"} if program else {}),
+            **({"settings": list(settings)} if settings else {})}
     (run / "config.json").write_text(json.dumps({"config": config, "forked_from": fork,
                                                  "environment": {"source": "abc1234def", "cpu": "Test CPU"}}))
     (run / "eval.csv").write_text("step,return_mean\n" + f"20000,{finals[0]}\n30000,{finals[1]}\n")
@@ -221,6 +223,7 @@ def test_paired_forks_are_read_against_the_control_of_their_own_checkpoint(
     _fork(forks, "p0_escape", 0, "escape20", (0.0, 110.0))
     _fork(forks, "p1_none", 1, None, (0.0, 200.0))
     _fork(forks, "p1_escape", 1, "escape20", (0.0, 190.0))
+    _fork(forks, "p0_explore", 0, None, (0.0, 80.0), settings=("agent.target_entropy=0",))  # an arm by setting
     spec = tmp_path / "results.toml"
     spec.write_text(f'''intro = "# Results"
 [[table]]
@@ -229,7 +232,7 @@ id = "p"
 title = "Paired forks"
 question = "Does the edit pay?"
 runs = "{forks}"
-arms = [["", "no edit"], ["escape20", "escape"]]
+arms = [["", "no edit"], ["escape20", "escape"], ["agent.target_entropy=0", "explore"]]
 command = "mira train --fork ..."
 ''')
     meta, tables = page.load_spec(spec)
@@ -237,10 +240,10 @@ command = "mira train --fork ..."
     lines = page.render(meta, tables, figures=None).splitlines()
 
     header = next(line for line in lines if line.startswith("| Parent"))
-    assert "| no edit | escape | escape vs control |" in header
+    assert "| no edit | escape | explore | escape vs control | explore vs control |" in header
     p0 = next(line for line in lines if line.startswith("| mira-no-mcm seed 0 at 10k"))
-    assert "| 100.0 | 110.0 | +10.0% |" in p0  # the final 10% of 30k: the evaluation at 30k
+    assert "| 100.0 | 110.0 | 80.0 | +10.0% | -20.0% |" in p0  # the final 10% of 30k: the evaluation at 30k
     p1 = next(line for line in lines if line.startswith("| mira-no-mcm seed 1 at 10k"))
-    assert "| 200.0 | 190.0 | -5.0% |" in p1
+    assert "| 200.0 | 190.0 | — | -5.0% | — |" in p1
     means = next(line for line in lines if line.startswith("| over the 2 parents with a control"))
-    assert "+2.5% [-5.0%, +10.0%]" in means
+    assert "+2.5% [-5.0%, +10.0%]" in means and "-20.0% [-20.0%, -20.0%]" in means

@@ -255,6 +255,8 @@ def prepare_fork(args: argparse.Namespace) -> tuple[Path, TrainConfig, dict[str,
     forked_from = {"run": str(parent.resolve()), "step": step, "sha256": manifest["sha256"],
                    "seed": saved["config"].get("seed"), "method": saved["config"].get("method"),
                    "source": (saved.get("environment") or {}).get("source")}
+    if args.overrides:
+        forked_from["settings"] = [a.strip() for a in args.overrides]  # what the fork changed: the arm of a pair
     if program is not None:
         forked_from["program_file"] = str(Path(args.fork_program).resolve())
         forked_from["program"] = program.to_json()  # a resume before the fork's first checkpoint installs it again

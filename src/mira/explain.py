@@ -244,6 +244,7 @@ def explain(run_dir: str | Path) -> str:
     if fork := cfg_file.get("forked_from"):
         installed = (f"; installed program {fork['program_file']} at the fork"
                      if fork.get("program_file") else "")
+        installed += "".join(f"; --set {a}" for a in fork.get("settings") or [])
         lines.append(f"Forked from {fork.get('run')} at step {fork.get('step')} (its method {fork.get('method')}, "
                      f"seed {fork.get('seed')}; checkpoint SHA-256 {str(fork.get('sha256'))[:12]}){installed}: its "
                      "record before the step is the parent's.")
