@@ -413,7 +413,7 @@ def render_pairs(pairs: Pairs) -> list[str]:
                 cells.append("—")
         body.append(cells)
     if body:
-        paired = sum(1 for by_arm in found.values() if any(r.steps for r in by_arm.get("", [])))
+        paired = sum(1 for by_arm in found.values() if by_arm.get(""))
         cells = [f"over the {paired} parent{'s' if paired != 1 else ''} with a control", ""]
         cells += [spread(v) if v else "—" for v in arms.values()]
         cells += [(f"{100 * sum(d) / len(d):+.1f}% [{100 * min(d):+.1f}%, {100 * max(d):+.1f}%]" if d else "—")

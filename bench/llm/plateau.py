@@ -72,11 +72,9 @@ def run_evidence(run: Path, step: int) -> tuple[Evidence, FactorProgram]:
         raise SystemExit(f"{run}: fewer than 20 evaluations up to step {step}")
     recent, before = float(np.median(evals[-10:])), float(np.median(evals[-20:-10]))
     d = {m: float(row[f"d_{m}"]) for m in METRICS}
-    decomposition = None
     saved = run / "decomposition.json"
-    if saved.is_file() and json.loads(saved.read_text(encoding="utf-8")).get("step") == step:
-        decomposition = {k: v for k, v in json.loads(saved.read_text(encoding="utf-8")).items()
-                         if k not in ("step", "version")}
+    fit = json.loads(saved.read_text(encoding="utf-8")) if saved.is_file() else {}
+    decomposition = {k: v for k, v in fit.items() if k not in ("step", "version")} if fit.get("step") == step else None
     band = {"feature": report["feature"], "center": report["center"], "halfwidth": report["halfwidth"]}
     plateau = {"step": step, "recent_median": recent, "previous_median": before, "rise": (recent - before) / before,
                **band, "visited": report["visited"], "start": report["start"], "d_peg": d["peg"],
@@ -90,11 +88,17 @@ def run_evidence(run: Path, step: int) -> tuple[Evidence, FactorProgram]:
     return evidence, program
 
 
+def evidence_and_program(run: Path | None, step: int | None) -> tuple[Evidence, FactorProgram]:
+    """A run's plateau at ``step`` (:func:`run_evidence`), or the fixed figures and the task's own program."""
+    if run is not None and step is not None:
+        return run_evidence(run, step)
+    return evidence(), example_program(TASK, 0)
+
+
 def write_prompt(out: Path, run: Path | None = None, step: int | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     card = load_task(TASK, check_env=False)
-    ev, program = run_evidence(run, step) if run is not None and step is not None else (evidence(),
-                                                                                         example_program(TASK, 0))
+    ev, program = evidence_and_program(run, step)
     request = build_srr_request(card, program, ev, [], MAX_CANDIDATES, OPERATORS, ACTION_DIM)
     system, user = (m["content"] for m in request.messages)
     (out / "prompt.txt").write_text(f"SYSTEM:\n{system}\n\nUSER:\n{user}")
@@ -106,8 +110,7 @@ def check(reply: Path, out: Path, run: Path | None = None, step: int | None = No
           program_out: Path | None = None) -> list[dict[str, object]]:
     out.mkdir(parents=True, exist_ok=True)
     card = load_task(TASK)
-    ev, program = run_evidence(run, step) if run is not None and step is not None else (evidence(),
-                                                                                         example_program(TASK, 0))
+    ev, program = evidence_and_program(run, step)
     obs, actions = collect_states(card, 300, seed=4)
     script = out / "replies.jsonl"
     script.write_text(json.dumps({"content": reply.read_text()}) + "\n")
