@@ -3,6 +3,7 @@ probation (the paper's case study II)."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import subprocess
@@ -26,6 +27,7 @@ from mira.factors.sandbox import collect_states
 from mira.mcm.plateau import (
     MIN_RISE,
     PATIENCE,
+    TREND_Z,
     WARMUP_CYCLES,
     WINDOW,
     PlateauDetector,
@@ -74,6 +76,36 @@ def test_a_flat_dip_after_the_warm_up_is_a_plateau_too() -> None:
     assert fired and len(early) <= fired[0] < len(early) + len(dip)
 
 
+def _medians_level(returns: np.ndarray) -> list[int]:
+    """The cycles at which the last window's median is less than MIN_RISE above the window's before."""
+    def median(lo: int, hi: int) -> float:
+        return float(np.median(returns[lo:hi]))
+    return [k for k in range(2 * WINDOW - 1, len(returns))
+            if median(k - WINDOW + 1, k + 1) < (1 + MIN_RISE) * median(k - 2 * WINDOW + 1, k - WINDOW + 1)]
+
+
+def test_level_medians_on_a_noisy_climb_are_not_a_plateau() -> None:
+    # Humanoid's held-out return: a climb with 15% noise per cycle and a flat stretch of 20 cycles in it.
+    rng = np.random.default_rng(3)
+    level = np.concatenate([np.linspace(300, 450, WARMUP_CYCLES), np.full(2 * WINDOW, 450.0),
+                            np.linspace(450, 600, 3 * WINDOW)])
+    returns = level * (1 + 0.15 * rng.standard_normal(level.size))
+    level_at = [k for k in _medians_level(returns) if k >= WARMUP_CYCLES - 1]
+    assert any(b == a + 1 for a, b in itertools.pairwise(level_at))  # the medians alone would report
+    assert _feed(PlateauDetector("torso_height"), returns) == []
+
+
+def test_a_sudden_drop_is_not_a_plateau_until_the_return_stays_down() -> None:
+    rng = np.random.default_rng(4)
+    drop = WARMUP_CYCLES + 2 * WINDOW
+    returns = np.concatenate([np.linspace(60_000, 130_000, drop), np.full(3 * WINDOW, 90_000.0)])
+    returns += rng.normal(0, 500, returns.size)  # a climb, then a fall to a lower level that holds
+    assert next(k for k in _medians_level(returns) if k > drop) < drop + WINDOW  # the medians alone: at once
+    fired = _feed(PlateauDetector("torso_height"), returns)
+    # Reported only once the trend over both windows is flat again: the drop has left them.
+    assert fired and fired[0] >= drop + 2 * WINDOW - 1
+
+
 def test_a_report_carries_the_band_and_the_paper_signature() -> None:
     detector = PlateauDetector("torso_height")
     found = None
@@ -82,6 +114,7 @@ def test_a_report_carries_the_band_and_the_paper_signature() -> None:
     assert found is not None
     assert found.feature == "torso_height" and abs(found.center - 0.40) < 0.01 and found.halfwidth < 0.01
     assert found.as_dict()["d_peg"] == -1.8 and found.as_dict()["d_rpe"] == 2.4 and found.rise < MIN_RISE
+    assert found.trend == 0.0 and found.trend_se == 0.0 and abs(found.trend) + TREND_Z * found.trend_se < MIN_RISE
     # Reported once: the history restarts, so the next report needs a stall of its own.
     assert detector.observe(10**6, 130_000.0, SETTLED, VISITED) is None
 
@@ -323,3 +356,18 @@ def test_an_escape_is_installed_rolled_back_and_resumed_bit_for_bit(tmp_path: Pa
     assert _cli(killed, f"checkpoint.after_payload:{kill_at}") != 0
     assert _cli(killed, resume=True) == 0
     assert _outcome(killed) == _outcome(reference)
+
+
+ARCHIVE = Path(__file__).resolve().parents[1] / "bench" / "archive"
+
+
+def test_on_the_archived_runs_it_reports_where_humanoidstandup_sits_and_not_where_humanoid_climbs() -> None:
+    replay = _load_bench("plateau_replay")
+    # Humanoid-v5 SAC at 100k climbs throughout (about 400 to 600); the medians alone reported twice per seed.
+    for seed in range(3):
+        run = ARCHIVE / f"hum100_sac_mira_s{seed}" / "humanoid" / "sac" / "mira" / f"seed{seed}"
+        assert len(replay.recorded(run)) == 2 and replay.replay(run) == []
+    # HumanoidStandup-v5 SAC without the monitor's edits sits at 131k-141k from 100k to 200k: reported.
+    for seed in range(3):
+        run = ARCHIVE / f"hs200_sac_mira_no_mcm_s{seed}" / "humanoidstandup" / "sac" / "mira-no-mcm" / f"seed{seed}"
+        assert replay.replay(run), run

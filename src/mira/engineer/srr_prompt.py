@@ -228,7 +228,9 @@ def _plateau_lines(ev: Evidence) -> list[str]:
     lines = [
         "PLATEAU (held-out return flat, episodes settled in a narrow band):",
         f"  return median of the last cycles {float(p['recent_median']):.4g} against {float(p['previous_median']):.4g} "
-        f"before ({float(p['rise']):+.1%})",
+        f"before ({float(p['rise']):+.1%})" + ("" if p.get("trend") is None else
+                                              f"; least-squares trend over both windows {float(p['trend']):+.1%} "
+                                              f"± {float(p['trend_se']):.1%} per window"),
         f"  settled band: {p['feature']} = {float(p['center']):.4g} ± {float(p['halfwidth']):.4g}, where the run has "
         f"visited [{lo:.4g}, {hi:.4g}]" + ("" if p.get("start") is None else
                                            f"; the episodes start at {float(p['start']):.4g}"),

@@ -8,6 +8,14 @@ torso height and stays). This detector reads what stagnation looks like directly
 * the held-out return has stopped rising: the median of the last ``WINDOW`` cycles is less than
   ``MIN_RISE`` (relative) above the median of the ``WINDOW`` cycles before, for ``PATIENCE`` cycles in a
   row, after ``WARMUP_CYCLES`` (the first cycles are noise around the untrained policy);
+* and the returns show that it is flat, not only that two medians happen to be level: the least-squares
+  trend over those ``2 * WINDOW`` cycles, ``TREND_Z`` standard errors either side, lies within
+  ``MIN_RISE`` per window of zero. On a noisy climb (Humanoid, whose held-out return moves 15-20% from
+  one cycle to the next) two level medians are common and say nothing, and a sudden drop is not a
+  plateau; on a run that sits (HumanoidStandup's crouch, about 1% noise) the interval is narrow. The
+  medians alone fired on every climbing Humanoid run twice; replayed on the archived returns
+  (``bench/plateau_replay.py``), the two tests together fire on none of them and on every seed of the
+  HumanoidStandup runs without edits;
 * the evaluation episodes settle in a narrow band of the card's ``band_feature``: the band holding half
   of the late-episode states (:func:`mira.mcm.band.stagnation_band`) is at most ``MAX_BAND_SHARE`` of the
   range the run has visited.
@@ -42,6 +50,8 @@ MIN_RISE = 0.02
 """The relative rise of the windowed median below which the return counts as flat."""
 PATIENCE = 2
 """Flat cycles in a row before a report: one flat comparison can be a dip."""
+TREND_Z = 1.0
+"""How sure the flatness must be: the trend's interval (this many standard errors) lies within ±MIN_RISE."""
 MAX_BAND_SHARE = 0.1
 """How narrow the settled band must be: its half-width as a share of the visited range of the feature."""
 LATE_SHARE = 0.5
@@ -64,11 +74,16 @@ class Plateau:
     rpe: float | None
     start: float | None = None
     """The feature's median at the first step of the evaluation episodes: where the climb to the band began."""
+    trend: float | None = None
+    """The held-out return's least-squares trend over the compared cycles, relative, per ``WINDOW`` cycles."""
+    trend_se: float | None = None
+    """Its standard error, in the same unit."""
 
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.step, "recent_median": self.recent_median, "previous_median": self.previous_median,
                 "rise": self.rise, "feature": self.feature, "center": self.center, "halfwidth": self.halfwidth,
-                "visited": list(self.visited), "start": self.start, "d_peg": self.peg, "d_rpe": self.rpe}
+                "visited": list(self.visited), "start": self.start, "d_peg": self.peg, "d_rpe": self.rpe,
+                "trend": self.trend, "trend_se": self.trend_se}
 
 
 def late_states(values: np.ndarray, episode_index: np.ndarray, share: float = LATE_SHARE) -> np.ndarray:
@@ -86,6 +101,19 @@ def first_states(values: np.ndarray, episode_index: np.ndarray) -> np.ndarray:
     values, episode_index = np.asarray(values, dtype=np.float64), np.asarray(episode_index)
     _, first = np.unique(episode_index, return_index=True)
     return values[first]
+
+
+def relative_trend(returns: list[float] | np.ndarray) -> tuple[float, float]:
+    """The least-squares slope of ``returns`` (one per cycle) and its standard error, both per ``WINDOW``
+    cycles and relative to the median of the last ``WINDOW``. With two points there is no residual to
+    estimate an error from: it is 0."""
+    y = np.asarray(returns, dtype=np.float64)
+    t = np.arange(y.size, dtype=np.float64) - (y.size - 1) / 2.0
+    level = max(abs(float(np.median(y[-WINDOW:]))), 1e-8)
+    slope = float(t @ (y - y.mean()) / (t @ t))
+    residual = y - y.mean() - slope * t
+    se = float(np.sqrt(residual @ residual / (y.size - 2) / (t @ t))) if y.size > 2 else 0.0
+    return slope * WINDOW / level, se * WINDOW / level
 
 
 class PlateauDetector:
@@ -110,7 +138,9 @@ class PlateauDetector:
         previous = float(np.median(self.returns[:WINDOW]))
         recent = float(np.median(self.returns[WINDOW:]))
         rise = (recent - previous) / max(abs(previous), 1e-8)
-        self.flat = self.flat + 1 if rise < MIN_RISE else 0
+        trend, se = relative_trend(self.returns)
+        flat = rise < MIN_RISE and abs(trend) + TREND_Z * se < MIN_RISE
+        self.flat = self.flat + 1 if flat else 0
         if self.flat < PATIENCE:
             return None
         center, half = stagnation_band(settled)
@@ -119,7 +149,7 @@ class PlateauDetector:
             return None
         self.reset()
         return Plateau(step, recent, previous, rise, self.feature, center, half,
-                       (float(visited[0]), float(visited[1])), peg, rpe, start)
+                       (float(visited[0]), float(visited[1])), peg, rpe, start, trend, se)
 
     def reset(self) -> None:
         """Forget the history: the next report needs a stall of its own (after a report, an edit or a rollback)."""
