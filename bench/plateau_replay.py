@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mira.mcm.config import MCMConfig
 from mira.mcm.plateau import PlateauDetector
 from mira.runio.csvlog import read_csv
 
@@ -31,7 +32,7 @@ _VISITED = (0.0, 1.0)
 def replay(run: Path) -> list[int]:
     """The steps at which today's detector reports a plateau on ``run``'s held-out returns."""
     config = json.loads((run / "config.json").read_text())
-    k_cool = int(config.get("mira", {}).get("mcm", {}).get("k_cool", 10))
+    k_cool = int(config.get("mira", {}).get("mcm", {}).get("k_cool", MCMConfig().k_cool))
     detector, quiet, found = PlateauDetector("replayed"), 0, []
     for row in read_csv(run / "diagnostics.csv"):
         if quiet:
@@ -55,6 +56,10 @@ def runs_under(path: Path) -> list[Path]:
     return sorted(p.parent for p in path.rglob("diagnostics.csv"))
 
 
+def _ks(steps: list[int]) -> str:
+    return ", ".join(f"{s // 1000}" for s in steps) or "none"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("paths", nargs="+", type=Path, help="run directories or folders holding them")
@@ -62,9 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     print("| run | recorded reports (k steps) | today's detector (k steps) |\n|---|---|---|")
     for path in args.paths:
         for run in runs_under(path):
-            def ks(steps: list[int]) -> str:
-                return ", ".join(f"{s // 1000}" for s in steps) or "none"
-            print(f"| `{run}` | {ks(recorded(run))} | {ks(replay(run))} |")
+            print(f"| `{run}` | {_ks(recorded(run))} | {_ks(replay(run))} |")
     return 0
 
 

@@ -12,10 +12,8 @@ torso height and stays). This detector reads what stagnation looks like directly
   trend over those ``2 * WINDOW`` cycles, ``TREND_Z`` standard errors either side, lies within
   ``MIN_RISE`` per window of zero. On a noisy climb (Humanoid, whose held-out return moves 15-20% from
   one cycle to the next) two level medians are common and say nothing, and a sudden drop is not a
-  plateau; on a run that sits (HumanoidStandup's crouch, about 1% noise) the interval is narrow. The
-  medians alone fired on every climbing Humanoid run twice; replayed on the archived returns
-  (``bench/plateau_replay.py``), the two tests together fire on none of them and on every seed of the
-  HumanoidStandup runs without edits;
+  plateau; on a run that sits (HumanoidStandup's crouch, about 1% noise) the interval is narrow
+  (``bench/plateau_replay.py`` replays the detector on archived returns; the results page has the figures);
 * the evaluation episodes settle in a narrow band of the card's ``band_feature``: the band holding half
   of the late-episode states (:func:`mira.mcm.band.stagnation_band`) is at most ``MAX_BAND_SHARE`` of the
   range the run has visited.
